@@ -1,0 +1,1 @@
+"""The ``inspect-pipe`` command line (typer). Commands are thin: parse, call one step, report."""

@@ -1,0 +1,28 @@
+"""Entry point of the ``inspect-pipe`` console script.
+
+Each command lives in its own module of this package and is registered here, once.
+"""
+
+from __future__ import annotations
+
+import typer
+
+import inspect_pipe
+
+app = typer.Typer(
+    name="inspect-pipe",
+    help="Supervised-autonomy MAV inspection of cargo holds: fly, capture, mosaic, detect, report.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.command("version")
+def version() -> None:
+    """Print the software version."""
+    typer.echo(inspect_pipe.__version__)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()
