@@ -1,0 +1,157 @@
+"""Image -> per-class probability maps -> decisions -> regions; tiled for large images."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ._features import ALIGN, SUPPORT_PX, check_image, compute_features
+from ._model import CONTEXT_SUPPORT_PX, ClassModel, DefectModel, class_logit, sigmoid
+
+#: Default tile core size (px, a multiple of ALIGN). A tile of 1024 + 2 x margin px holds about
+#: 25 float32 feature maps at once: ~0.4 GB, independent of the image size.
+TILE_PX = 1024
+
+
+@dataclass(frozen=True)
+class Region:
+    """One connected defect region of a class's decision mask (pixel coordinates, x right, y down)."""
+
+    cls: str
+    polygon_px: tuple[tuple[int, int], ...]  # outer boundary, simplified to 1 px
+    area_px: int
+    confidence: float  # mean defect probability over the region's pixels, 0..1
+    bbox_xywh: tuple[int, int, int, int]
+
+    def to_json(self) -> dict:
+        return {
+            "class": self.cls,
+            "polygon_px": [list(p) for p in self.polygon_px],
+            "area_px": self.area_px,
+            "confidence": round(self.confidence, 4),
+            "bbox_xywh": list(self.bbox_xywh),
+        }
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Result for one image. ``prob``: (H, W) uint8, 0..255 = P(defect of any requested class),
+    the largest of the class maps; ``mask``: (H, W) bool, union of the class decisions."""
+
+    prob: np.ndarray
+    mask: np.ndarray
+    class_probs: dict[str, np.ndarray]
+    regions: tuple[Region, ...]
+
+
+def _margin_px(model: DefectModel, kinds) -> int:
+    sig = max(model.classes[k].smooth_sigma_px for k in kinds)
+    m = SUPPORT_PX + CONTEXT_SUPPORT_PX + int(np.ceil(4 * sig))
+    return int(np.ceil(m / ALIGN) * ALIGN)
+
+
+def class_probabilities(image: np.ndarray, model: DefectModel, kinds, *, naive: bool = False) -> dict[str, np.ndarray]:
+    """P(defect of class k | features) for each k in ``kinds``, (H, W) float32, whole image at once."""
+    fs = compute_features(image)
+    return {k: sigmoid(class_logit(fs, model.classes[k], naive=naive)) for k in kinds}
+
+
+def _to_u8(p: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(p * np.float32(255)), 0, 255).astype(np.uint8)
+
+
+def class_probabilities_u8(
+    image: np.ndarray, model: DefectModel, kinds, *, tile_px: int = TILE_PX
+) -> dict[str, np.ndarray]:
+    """Like :func:`class_probabilities` but uint8 and processed in overlapping tiles when the
+    image is larger than one tile, so memory stays bounded; tile cores are aligned to the
+    pyramid grid, so the result equals whole-image processing up to float rounding except within
+    the margin of the image's own border effects."""
+    h, w = image.shape[:2]
+    if tile_px % ALIGN:
+        raise ValueError(f"tile_px must be a multiple of {ALIGN}")
+    if h <= tile_px and w <= tile_px:
+        return {k: _to_u8(p) for k, p in class_probabilities(image, model, kinds).items()}
+    m = _margin_px(model, kinds)
+    out = {k: np.zeros((h, w), np.uint8) for k in kinds}
+    for y0 in range(0, h, tile_px):
+        for x0 in range(0, w, tile_px):
+            y1, x1 = min(y0 + tile_px, h), min(x0 + tile_px, w)
+            ty0, tx0 = max(y0 - m, 0), max(x0 - m, 0)
+            ty1, tx1 = min(y1 + m, h), min(x1 + m, w)
+            tile = np.ascontiguousarray(image[ty0:ty1, tx0:tx1])
+            probs = class_probabilities(tile, model, kinds)
+            for k, p in probs.items():
+                out[k][y0:y1, x0:x1] = _to_u8(p[y0 - ty0 : y1 - ty0, x0 - tx0 : x1 - tx0])
+            del probs, tile
+    return out
+
+
+def decide(prob_u8: np.ndarray, cm: ClassModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Decision mask of one class: hysteresis (pixels >= low threshold 8-connected to a pixel >=
+    the threshold), then connected components below ``min_area_px`` removed.
+
+    Returns (mask bool, labels int32, stats, kept label ids)."""
+    hi = int(np.ceil(cm.threshold * 255))
+    lo = min(int(np.ceil(cm.low_threshold * 255)), hi)
+    cand = (prob_u8 >= lo).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8, ltype=cv2.CV_32S)
+    del cand
+    keep = np.zeros(n, bool)
+    if lo < hi:
+        keep[np.unique(labels[prob_u8 >= hi])] = True
+    else:
+        keep[:] = True
+    keep[0] = False
+    keep &= stats[:, cv2.CC_STAT_AREA] >= cm.min_area_px
+    mask = keep[labels]
+    return mask, labels, stats, np.flatnonzero(keep)
+
+
+def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids) -> list[Region]:
+    """One :class:`Region` per kept component id."""
+    regions = []
+    for i in ids:
+        x, y, w, h, area = (int(v) for v in stats[i])
+        roi = (labels[y : y + h, x : x + w] == i).astype(np.uint8)
+        contours, _ = cv2.findContours(roi, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x, y))
+        c = max(contours, key=cv2.contourArea)
+        poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2)
+        conf = float(prob_u8[y : y + h, x : x + w][roi.astype(bool)].mean()) / 255.0
+        regions.append(Region(cls, tuple((int(a), int(b)) for a, b in poly), area, conf, (x, y, w, h)))
+    return regions
+
+
+def detect(
+    image: np.ndarray,
+    model: DefectModel,
+    *,
+    kinds: tuple[str, ...] = ("corrosion", "crack"),
+    tile_px: int = TILE_PX,
+) -> Detection:
+    """Detect defects of the classes ``kinds`` in an 8-bit BGR (or grey) image (H, W[, 3]).
+
+    Raises ValueError for an unusable image, an unknown class, or a colour class on a grey image.
+    """
+    check_image(image)
+    for k in kinds:
+        if k not in model.classes:
+            raise ValueError(f"model has no class {k!r} (has {', '.join(model.classes)})")
+    grey = image.ndim == 2 or image.shape[2] == 1
+    for k in kinds:
+        if grey and model.classes[k].needs_colour:
+            raise ValueError(f"one-channel image: {k} needs colour")
+    probs = class_probabilities_u8(image, model, kinds, tile_px=tile_px)
+    h, w = image.shape[:2]
+    mask = np.zeros((h, w), bool)
+    regions: list[Region] = []
+    for k in kinds:
+        m, labels, stats, ids = decide(probs[k], model.classes[k])
+        mask |= m
+        del m
+        regions += regions_of(k, probs[k], labels, stats, ids)
+        del labels
+    prob = probs[kinds[0]].copy() if len(kinds) == 1 else np.maximum.reduce([probs[k] for k in kinds])
+    return Detection(prob, mask, probs, tuple(regions))

@@ -1,0 +1,278 @@
+"""Learning the likelihood tables, the table weights and the operating point of one class.
+
+Three passes over the training images (features are recomputed each pass to keep memory flat):
+1. sample pixels (all classes balanced per image, an ignore band around label boundaries),
+   build per-feature class-conditional histograms -> LLR tables, fit table weights by weighted
+   logistic regression (sample weights restore the true pixel prior);
+2. optional auto-context stage: the same on features of the stage-1 logit map;
+3. choose the operating point (threshold, hysteresis low threshold) that maximises F on the
+   training images, with the class's evaluation tolerance and the speckle filter applied.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import cv2
+import numpy as np
+
+from ._detect import decide
+from ._features import FEATURE_NAMES, N_HUE, N_SAT, compute_features
+from ._metrics import ToleranceCounts, best_f, tolerance_counts
+from ._model import CONTEXT_NAMES, N_BINS, ClassModel, FeatureTable, Stage, class_logit, context_features, sigmoid
+
+Loader = Callable[[], tuple[np.ndarray, np.ndarray]]
+
+GREY_FEATURES = (
+    "int_cs", "int_cs_abs", "ori_cs", "sym", "val", "rough", "rough2",
+    "ridge1", "ridge2", "ridge3", "dark", "line", "line2", "coh",
+)
+
+
+@dataclass(frozen=True)
+class ClassTrainConfig:
+    """How one class is trained. Pixel counts are per training image."""
+
+    cls: str
+    features: tuple[str, ...] = FEATURE_NAMES
+    needs_colour: bool = True
+    tol_px: float = 0.0  # tolerance of the F score that picks the operating point
+    ignore_band_px: int = 0  # label-boundary band left out of the training samples
+    pos_per_image: int = 2000
+    neg_per_image: int = 2000
+    context: bool = False
+    smooth_sigma_px: float = 0.0
+    min_area_px: int = 20
+    hysteresis_ratios: tuple[float, ...] = (1.0,)
+    l2: float = 1e-3
+    seed: int = 0
+    max_features: int = 0  # 0: keep all; else greedy forward selection on the sample log-loss
+
+    def __post_init__(self) -> None:
+        unknown = set(self.features) - set(FEATURE_NAMES)
+        if unknown:
+            raise ValueError(f"unknown features {sorted(unknown)}")
+
+
+#: The configurations of the shipped model (one per class).
+DEFAULT_CONFIGS = {
+    "crack": ClassTrainConfig(
+        cls="crack", features=GREY_FEATURES, needs_colour=False, tol_px=2.0, ignore_band_px=2,
+        pos_per_image=3000, neg_per_image=6000, context=True, min_area_px=20,
+        hysteresis_ratios=(1.0, 0.8, 0.6, 0.45),
+    ),
+    "corrosion": ClassTrainConfig(
+        cls="corrosion", features=FEATURE_NAMES, needs_colour=True, tol_px=0.0, ignore_band_px=3,
+        pos_per_image=1500, neg_per_image=1500, context=True, smooth_sigma_px=2.0, min_area_px=64,
+    ),
+    "surface": ClassTrainConfig(
+        cls="surface", features=GREY_FEATURES, needs_colour=False, tol_px=0.0, ignore_band_px=1,
+        pos_per_image=600, neg_per_image=600, context=True, smooth_sigma_px=1.5, min_area_px=20,
+    ),
+}
+
+
+@dataclass
+class _Samples:
+    pos: list = field(default_factory=list)
+    neg: list = field(default_factory=list)
+    n_pos_total: int = 0
+    n_neg_total: int = 0
+
+
+def _sample_masks(gt: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
+    g = gt.astype(np.uint8)
+    if band <= 0:
+        return gt.astype(bool), ~gt.astype(bool)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band + 1, 2 * band + 1))
+    near = cv2.dilate(g, k).astype(bool)
+    pos = gt.astype(bool)
+    if pos.sum() > 400:  # thin structures (cracks) keep every labelled pixel
+        core = cv2.erode(g, k).astype(bool)
+        if core.sum() > 0.3 * pos.sum():
+            pos = core
+    return pos, ~near
+
+
+def _draw(rng: np.random.Generator, flat_idx: np.ndarray, n: int) -> np.ndarray:
+    if flat_idx.size <= n:
+        return flat_idx
+    return rng.choice(flat_idx, n, replace=False)
+
+
+def _collect(maps: dict[str, np.ndarray], names, pos_m, neg_m, cfg, rng, acc: _Samples) -> None:
+    pi = np.flatnonzero(pos_m.ravel())
+    ni = np.flatnonzero(neg_m.ravel())
+    acc.n_pos_total += pi.size
+    acc.n_neg_total += ni.size
+    pi = _draw(rng, pi, cfg.pos_per_image)
+    ni = _draw(rng, ni, cfg.neg_per_image)
+    stack = np.stack([maps[n].ravel() for n in names], axis=1)
+    acc.pos.append(stack[pi])
+    acc.neg.append(stack[ni])
+
+
+def _tables(names, pos: np.ndarray, neg: np.ndarray) -> list[FeatureTable]:
+    tables = []
+    for j, name in enumerate(names):
+        xp, xn = pos[:, j], neg[:, j]
+        if name == "hs":
+            nb, lo, hi, cat = N_HUE * N_SAT, 0.0, float(N_HUE * N_SAT), True
+            bp = np.clip(xp, 0, nb - 1).astype(int)
+            bn = np.clip(xn, 0, nb - 1).astype(int)
+        else:
+            both = np.concatenate([xp, xn])
+            lo, hi = (float(v) for v in np.percentile(both, [0.5, 99.5]))
+            if hi <= lo:
+                hi = lo + 1e-6
+            nb, cat = N_BINS, False
+            sc = nb / (hi - lo)
+            bp = np.clip((xp - lo) * sc, 0, nb - 1).astype(int)
+            bn = np.clip((xn - lo) * sc, 0, nb - 1).astype(int)
+        hp = np.bincount(bp, minlength=nb).astype(np.float64) + 1.0
+        hn = np.bincount(bn, minlength=nb).astype(np.float64) + 1.0
+        if not cat:  # light smoothing along the value axis
+            k = np.array([0.25, 0.5, 0.25])
+            hp = np.convolve(np.pad(hp, 1, mode="edge"), k, "valid")
+            hn = np.convolve(np.pad(hn, 1, mode="edge"), k, "valid")
+        llr = np.log(hp / hp.sum()) - np.log(hn / hn.sum())
+        tables.append(FeatureTable(name, lo, hi, llr.astype(np.float32), cat))
+    return tables
+
+
+def _llr_matrix(tables, x: np.ndarray) -> np.ndarray:
+    cols = []
+    for j, t in enumerate(tables):
+        b = t.bins(x[:, j:j + 1].astype(np.float32)).ravel().astype(int)
+        cols.append(t.llr[b])
+    return np.stack(cols, axis=1).astype(np.float64)
+
+
+def _logistic(X: np.ndarray, y: np.ndarray, w: np.ndarray, l2: float) -> tuple[np.ndarray, float]:
+    """Weighted L2-regularised logistic regression by Newton's method; returns (coef, bias)."""
+    n, d = X.shape
+    A = np.hstack([X, np.ones((n, 1))])
+    beta = np.zeros(d + 1)
+    beta[:d] = 1.0 / max(d, 1)
+    reg = np.full(d + 1, l2 * w.sum())
+    reg[-1] = 0.0
+    for _ in range(50):
+        z = A @ beta
+        p = 1.0 / (1.0 + np.exp(-np.clip(z, -30, 30)))
+        g = A.T @ (w * (p - y)) + reg * beta
+        H = (A * (w * p * (1 - p))[:, None]).T @ A + np.diag(reg) + 1e-9 * np.eye(d + 1)
+        step = np.linalg.solve(H, g)
+        beta -= step
+        if np.abs(step).max() < 1e-7:
+            break
+    return beta[:d].astype(np.float32), float(beta[d])
+
+
+def _fit_stage(names, acc: _Samples, l2: float) -> Stage:
+    pos = np.concatenate(acc.pos)
+    neg = np.concatenate(acc.neg)
+    tables = _tables(names, pos, neg)
+    X = _llr_matrix(tables, np.concatenate([pos, neg]))
+    y = np.concatenate([np.ones(len(pos)), np.zeros(len(neg))])
+    # sample weights restore the true class frequencies of the (non-ignored) training pixels
+    wp = acc.n_pos_total / max(len(pos), 1)
+    wn = acc.n_neg_total / max(len(neg), 1)
+    w = np.concatenate([np.full(len(pos), wp), np.full(len(neg), wn)])
+    w /= w.mean()
+    coef, bias = _logistic(X, y, w, l2)
+    prior = float(np.log(max(acc.n_pos_total, 1) / max(acc.n_neg_total, 1)))
+    return Stage(tuple(tables), coef, bias, prior)
+
+
+def _operating_point(cfg: ClassTrainConfig, stages, items: Sequence[Loader]) -> tuple[float, float, dict]:
+    probs, gts = [], []
+    total = None
+    cm0 = ClassModel(cfg.cls, tuple(stages), 0.5, 0.5, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour)
+    for load in items:
+        img, gt = load()
+        p = np.clip(np.rint(sigmoid(class_logit(compute_features(img), cm0)) * 255), 0, 255).astype(np.uint8)
+        probs.append(p)
+        gts.append(gt)
+        c = tolerance_counts(p, gt, cfg.tol_px)
+        total = c if total is None else total + c
+    f0, t0 = best_f(total)
+    best = (-1.0, t0, 1.0)
+    for ratio in cfg.hysteresis_ratios:
+        for t in range(max(t0 - 40, 2), min(t0 + 41, 255), 3):
+            cm = ClassModel(cfg.cls, (), t / 255, t * ratio / 255, 0, cfg.min_area_px, cfg.needs_colour)
+            tot = None
+            for p, gt in zip(probs, gts):
+                m = decide(p, cm)[0]
+                c = tolerance_counts(m.astype(np.uint8) * 255, gt, cfg.tol_px)
+                tot = c if tot is None else tot + c
+            pr, rc, f = (float(a[255]) for a in tot.prf())
+            if f > best[0]:
+                best = (f, t, ratio, pr, rc)
+    f, t, ratio, pr, rc = best
+    score = {"f_ods_train": round(f0, 4), "f_train": round(f, 4), "precision_train": round(pr, 4),
+             "recall_train": round(rc, 4), "tol_px": cfg.tol_px}
+    return t / 255, t * ratio / 255, score
+
+
+def train_class(items: Sequence[Loader], cfg: ClassTrainConfig, *, log=print) -> ClassModel:
+    """Learn one class from labelled images (``load() -> (image, gt bool)``)."""
+    if not items:
+        raise ValueError("no training images")
+    rng = np.random.default_rng(cfg.seed)
+    acc = _Samples()
+    names = list(cfg.features)
+    for load in items:
+        img, gt = load()
+        fs = compute_features(img)
+        pos_m, neg_m = _sample_masks(gt, cfg.ignore_band_px)
+        _collect({n: fs[n] for n in names}, names, pos_m, neg_m, cfg, rng, acc)
+    stage1 = _fit_stage(names, acc, cfg.l2)
+    log(f"  {cfg.cls}: stage 1 on {sum(len(a) for a in acc.pos)} + {sum(len(a) for a in acc.neg)} px; "
+        f"weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(names, stage1.weights)))
+    stages = [stage1]
+    if cfg.context:
+        acc2 = _Samples()
+        for load in items:
+            img, gt = load()
+            fs = compute_features(img)
+            z = stage1.logit({n: fs[n] for n in names})
+            pos_m, neg_m = _sample_masks(gt, cfg.ignore_band_px)
+            _collect(context_features(z), CONTEXT_NAMES, pos_m, neg_m, cfg, rng, acc2)
+        stage2 = _fit_stage(list(CONTEXT_NAMES), acc2, cfg.l2)
+        log(f"  {cfg.cls}: context weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(CONTEXT_NAMES, stage2.weights)))
+        stages.append(stage2)
+    thr, low, score = _operating_point(cfg, stages, items)
+    log(f"  {cfg.cls}: operating point P >= {thr:.3f} (hysteresis {low:.3f}); train {score}")
+    return ClassModel(cfg.cls, tuple(stages), thr, low, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour, score)
+
+
+def train_model(sources: dict, *, version: str, configs: dict | None = None, log=print) -> "DefectModel":
+    """Train every class of ``sources`` ({class: (set_name, [LabelledImage, ...])}) and record the
+    data set, split rule and training images in the model's metadata."""
+    import datetime as _dt
+
+    from inspect_pipe import __version__
+
+    from ._datasets import SPLIT_RULE
+    from ._model import DefectModel
+
+    configs = {**DEFAULT_CONFIGS, **(configs or {})}
+    classes, data = {}, {}
+    for cls, (set_name, items) in sources.items():
+        log(f"training {cls} on {set_name}: {len(items)} images")
+        classes[cls] = train_class([it.load for it in items], configs[cls], log=log)
+        data[cls] = {
+            "set": set_name,
+            "split": "train",
+            "split_rule": SPLIT_RULE,
+            "n_images": len(items),
+            "images": [it.stem for it in items],
+        }
+    meta = {
+        "version": version,
+        "created": _dt.date.today().isoformat(),
+        "software": f"inspect_pipe {__version__}",
+        "training_data": data,
+    }
+    return DefectModel(classes, meta)
