@@ -8,6 +8,7 @@ from __future__ import annotations
 import typer
 
 import inspect_pipe
+from cli import detect as _detect
 
 app = typer.Typer(
     name="inspect-pipe",
@@ -22,6 +23,9 @@ app = typer.Typer(
 def version() -> None:
     """Print the software version."""
     typer.echo(inspect_pipe.__version__)
+
+
+app.add_typer(_detect.app, name="detect")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ._combine import combine_max, combine_normalised_sum, conspicuity_maps
-from ._datasets import SPLIT_RULE, LabelledImage, labelled_set, split_of
+from ._datasets import SETS, SPLIT_RULE, LabelledImage, generic_set, labelled_set, split_of
 from ._detect import TILE_PX, Detection, Region, class_probabilities, class_probabilities_u8, decide, detect
 from ._features import FEATURE_NAMES, FeatureStack, compute_features
 from ._model import ClassModel, DefectModel, load_model, save_model
@@ -39,5 +39,5 @@ __all__ = [
     "LabelledImage", "Region",
     "class_probabilities", "class_probabilities_u8", "combine_max", "combine_normalised_sum",
     "compute_features", "conspicuity_maps", "decide", "default_model_path", "detect",
-    "labelled_set", "load_model", "save_model", "split_of", "train_class", "train_model",
+    "generic_set", "labelled_set", "load_model", "SETS", "save_model", "split_of", "train_class", "train_model",
 ]

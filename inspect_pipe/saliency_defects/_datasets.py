@@ -108,3 +108,29 @@ def labelled_set(folder: Path, set_name: str | None = None, split: str | None = 
     if split is not None:
         items = [it for it in items if split_of(name, it.stem) == split]
     return items
+
+
+def _generic(root: Path, set_name: str) -> list[LabelledImage]:
+    """Any folder with ``images/NAME.(jpg|jpeg|png|bmp|tif)`` and ``masks/NAME.png`` (non-zero = defect)."""
+    items = []
+    for p in sorted((root / "images").iterdir()):
+        if p.suffix.lower() not in (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"):
+            continue
+        m = root / "masks" / f"{p.stem}.png"
+        if not m.exists():
+            continue
+
+        def load(p=p, m=m):
+            return _read(p, cv2.IMREAD_COLOR), _read(m, cv2.IMREAD_GRAYSCALE) > 0
+
+        items.append(LabelledImage(set_name, p.stem, p, load))
+    return items
+
+
+def generic_set(folder: Path, split: str | None = None) -> list[LabelledImage]:
+    """A user's labelled folder (``images/`` + ``masks/``), named after the folder."""
+    folder = Path(folder)
+    items = _generic(folder, folder.name)
+    if split is not None:
+        items = [it for it in items if split_of(folder.name, it.stem) == split]
+    return items

@@ -1,0 +1,113 @@
+"""``inspect-pipe detect`` and ``inspect-pipe detect train`` end to end, including bad input."""
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+from typer.testing import CliRunner
+
+from cli.main import app
+
+from ._synth import painted_wall_with_rust, pavement_with_cracks
+
+FIX = Path(__file__).resolve().parents[1] / "fixtures" / "defects"
+runner = CliRunner()
+
+
+def _invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_detect_one_image_writes_the_three_outputs(tmp_path):
+    out = tmp_path / "out"
+    r = _invoke("detect", FIX / "vt_train_112.jpeg", "-o", out)
+    assert r.exit_code == 0, r.output
+    prob = cv2.imread(str(out / "vt_train_112.prob.png"), cv2.IMREAD_UNCHANGED)
+    mask = cv2.imread(str(out / "vt_train_112.mask.png"), cv2.IMREAD_UNCHANGED)
+    assert prob.dtype == np.uint8 and prob.shape == (512, 512)
+    assert set(np.unique(mask)) <= {0, 255} and mask.any()
+    doc = json.loads((out / "defects.json").read_text())
+    assert doc["format"] == "inspect_pipe.defects/1"
+    assert doc["regions"]
+    for reg in doc["regions"]:
+        assert reg["class"] in ("corrosion", "crack")
+        assert len(reg["polygon_px"]) >= 3 and reg["area_px"] > 0 and 0 < reg["confidence"] <= 1
+    # the mask is the union of the listed regions' pixels
+    assert (mask > 0).sum() <= sum(reg["area_px"] for reg in doc["regions"])
+
+
+def test_detect_kind_and_explicit_run_subcommand(tmp_path):
+    r = _invoke("detect", "run", FIX / "crackforest_004.jpg", "-o", tmp_path, "--kind", "crack")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "defects.json").read_text())
+    assert doc["kinds"] == ["crack"] and {g["class"] for g in doc["regions"]} == {"crack"}
+
+
+def test_folder_with_bad_files_writes_the_good_ones_and_exits_2(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(FIX / "crackforest_004.jpg", src / "a_good.jpg")
+    (src / "b_broken.png").write_bytes(b"\x89PNG garbage")
+    (src / "c_empty.jpg").write_bytes(b"")
+    cv2.imwrite(str(src / "d_deep.png"), np.full((32, 32, 3), 1000, np.uint16))
+    out = tmp_path / "out"
+    r = _invoke("detect", src, "-o", out)
+    assert r.exit_code == 2
+    lines = [ln for ln in r.output.strip().splitlines() if ln.startswith("error")]
+    assert "Traceback" not in r.output
+    assert "b_broken.png" in lines[-1] and "3 other" not in lines[-1]
+    assert any("d_deep.png" in ln and "uint16" in ln for ln in lines)
+    assert any("c_empty.jpg" in ln and "empty" in ln for ln in lines)
+    assert (out / "a_good.prob.png").exists() and (out / "a_good.mask.png").exists()
+    doc = json.loads((out / "defects.json").read_text())
+    assert [i["name"] for i in doc["images"]] == ["a_good"]
+    assert len(doc["errors"]) == 3
+
+
+def test_missing_model_empty_folder_and_grey_corrosion_exit_2(tmp_path):
+    r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o", "--model", tmp_path / "none.npz")
+    assert r.exit_code == 2 and "none.npz" in r.output and "not found" in r.output
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = _invoke("detect", empty, "-o", tmp_path / "o2")
+    assert r.exit_code == 2 and "no images" in r.output
+    r = _invoke("detect", tmp_path / "nope.png", "-o", tmp_path / "o3")
+    assert r.exit_code == 2 and "nope.png" in r.output
+    grey = tmp_path / "grey.png"
+    cv2.imwrite(str(grey), cv2.imread(str(FIX / "crackforest_004.jpg"), cv2.IMREAD_GRAYSCALE))
+    r = _invoke("detect", grey, "-o", tmp_path / "o4", "--kind", "corrosion")
+    assert r.exit_code == 2 and "grey.png" in r.output and "colour" in r.output
+    r = _invoke("detect", grey, "-o", tmp_path / "o5", "--kind", "crack")
+    assert r.exit_code == 0, r.output
+
+
+def test_train_on_a_labelled_folder_then_detect_with_it(tmp_path):
+    # GIVEN a generic labelled folder (images/ + masks/) of synthetic cracks
+    data = tmp_path / "mycracks"
+    (data / "images").mkdir(parents=True)
+    (data / "masks").mkdir()
+    rng = np.random.default_rng(4)
+    for i in range(8):
+        img, gt = pavement_with_cracks(rng, 160, 240)
+        cv2.imwrite(str(data / "images" / f"{i:02d}.png"), img)
+        cv2.imwrite(str(data / "masks" / f"{i:02d}.png"), gt.astype(np.uint8) * 255)
+    model = tmp_path / "m.npz"
+    # WHEN trained with the CLI
+    r = _invoke("detect", "train", data, "-o", model, "--class", "crack", "--version", "7")
+    assert r.exit_code == 0, r.output
+    # THEN the model records its data and split and detects with the CLI
+    from inspect_pipe.saliency_defects import load_model, split_of
+
+    m = load_model(model)
+    assert m.version == "7" and m.meta["training_data"]["crack"]["set"] == "mycracks"
+    assert all(split_of("mycracks", s) == "train" for s in m.meta["training_data"]["crack"]["images"])
+    r = _invoke("detect", data / "images", "-o", tmp_path / "det", "--model", model, "--kind", "crack")
+    assert r.exit_code == 0, r.output
+    assert len(list((tmp_path / "det").glob("*.mask.png"))) == 8
+
+
+def test_train_without_labels_exits_2(tmp_path):
+    r = _invoke("detect", "train", tmp_path, "-o", tmp_path / "m.npz")
+    assert r.exit_code == 2 and "no labelled set" in r.output
