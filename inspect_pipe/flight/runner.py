@@ -1,0 +1,151 @@
+"""Scenario runner: the simulated vehicle, its sensors, battery and operator link around the
+onboard stack, stepped together on one simulated clock, faster than real time."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from inspect_pipe.flight.battery import Battery
+from inspect_pipe.flight.geometry import Clearances, HoldGeometry
+from inspect_pipe.flight.operator_link import LinkSpec, OperatorLink
+from inspect_pipe.flight.scenario import VEHICLE_RADIUS_M, FaultKind, Scenario
+from inspect_pipe.flight.sensors import SensorSpecs, SensorSuite
+from inspect_pipe.flight.vehicle_sim import AttitudeFirmware, QuadrotorSim, VehicleModel
+from inspect_pipe.flight_stack.flight_machine import FlightState
+from inspect_pipe.flight_stack.onboard import OnboardStack, TickOutput
+from inspect_pipe.flight_stack.params import StackParams
+
+__all__ = ["ExitStatus", "FlightResult", "SimParts", "TickRecord", "run_scenario"]
+
+
+class ExitStatus(str, enum.Enum):
+    COMPLETED = "completed"  # the scenario's duration elapsed without a collision
+    COLLISION = "collision"
+
+
+@dataclass(frozen=True, slots=True)
+class TickRecord:
+    """One control tick: ground truth and what the onboard stack saw and did."""
+
+    t: float
+    pos_true: tuple[float, float, float]
+    vel_true: tuple[float, float, float]
+    yaw_true: float
+    out: TickOutput
+    dist_true: Clearances
+    battery_percent: float
+    link_ok: bool
+    collided: bool
+
+
+@dataclass(frozen=True)
+class FlightResult:
+    status: ExitStatus
+    final_fsm: FlightState
+    sim_time_s: float
+    wall_time_s: float
+    ticks: int
+    tick_seconds: tuple[float, ...]  # onboard stack compute time per tick
+    collided_at_s: float | None = None
+
+    @property
+    def speed_x_real_time(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else float("inf")
+
+
+@dataclass(frozen=True)
+class SimParts:
+    """What the simulator is made of; defaults are the embedded simulator."""
+
+    vehicle: VehicleModel = VehicleModel()
+    firmware: AttitudeFirmware = AttitudeFirmware()
+    sensors: SensorSpecs = SensorSpecs()
+    link: LinkSpec = LinkSpec()
+    physics_hz: float = 400.0
+
+
+def stack_params_for(scenario: Scenario, params: StackParams | None = None) -> StackParams:
+    params = params or StackParams()
+    return params.replace(behaviors=dataclasses.replace(params.behaviors, max_height_m=scenario.max_height_m))
+
+
+def run_scenario(
+    scenario: Scenario,
+    *,
+    params: StackParams | None = None,
+    parts: SimParts | None = None,
+    on_tick: Callable[[TickRecord], None] | None = None,
+    stop_on_collision: bool = True,
+) -> FlightResult:
+    """Fly ``scenario``; ``on_tick`` receives every :class:`TickRecord` (e.g. a log writer)."""
+    parts = parts or SimParts()
+    stack = OnboardStack(stack_params_for(scenario, params))
+    tick_hz = stack.params.control.tick_hz
+    substeps = max(1, round(parts.physics_hz / tick_hz))
+    physics_hz = substeps * tick_hz
+    v = scenario.vehicle
+    sim = QuadrotorSim(
+        scenario.world, v.start_position_m, v.start_yaw_rad, vehicle=parts.vehicle, firmware=parts.firmware,
+        physics_hz=physics_hz, seed=scenario.seed,
+    )
+    sensors = SensorSuite(parts.sensors, seed=scenario.seed)
+    link = OperatorLink(scenario.operator, scenario.faults, parts.link)
+    battery = Battery(v.battery)
+    geometry = HoldGeometry(scenario.world)
+    dropouts = [f for f in scenario.faults if f.kind is FaultKind.SENSOR_DROPOUT]
+    hover = stack.params.control.hover_thrust_frac
+
+    n_ticks = int(round(scenario.duration_s * tick_hz))
+    tick_dt = 1.0 / tick_hz
+    tick_seconds: list[float] = []
+    status, collided_at = ExitStatus.COMPLETED, None
+    wall0 = time.perf_counter()
+    k = 0
+    for k in range(n_ticks + 1):
+        now = k * tick_dt
+        link.advance(now)
+        operator = link.receive(now)
+        meas = sensors.read(now, sim)
+        c0 = time.perf_counter()
+        out = stack.tick(now, meas, operator, battery.percent)
+        tick_seconds.append(time.perf_counter() - c0)
+        sim.set_setpoint(out.setpoint)
+
+        x, y, z = sim.position
+        dist = geometry.clearances(x, y, z)
+        collided = geometry.wall_distance(x, y, z) < VEHICLE_RADIUS_M or (
+            out.fsm is FlightState.FLYING and z < VEHICLE_RADIUS_M
+        )
+        if on_tick is not None:
+            on_tick(
+                TickRecord(
+                    t=now, pos_true=(x, y, z), vel_true=sim.velocity, yaw_true=sim.euler()[2], out=out,
+                    dist_true=dist, battery_percent=battery.percent, link_ok=operator.link_ok, collided=collided,
+                )
+            )
+        if collided and collided_at is None:
+            status, collided_at = ExitStatus.COLLISION, now
+            if stop_on_collision:
+                break
+        if k == n_ticks:
+            break
+        dropped = frozenset(f.sensor for f in dropouts if f.active(now))  # type: ignore[misc]
+        for _ in range(substeps):
+            sim.step(1)
+            sensors.sample(sim, dropped)  # type: ignore[arg-type]
+        battery.drain(tick_dt, sim.thrust_n / (hover * parts.vehicle.max_thrust_n))
+    return FlightResult(
+        status=status,
+        final_fsm=stack.fsm,
+        sim_time_s=k * tick_dt,
+        wall_time_s=time.perf_counter() - wall0,
+        ticks=k + 1,
+        tick_seconds=tuple(tick_seconds),
+        collided_at_s=collided_at,
+    )
+
+

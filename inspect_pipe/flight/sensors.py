@@ -1,0 +1,193 @@
+"""Simulated sensors with their real rates, ranges, noise and latency.
+
+* PX4Flow (bottom and front): metric flow at 100 Hz, 20 ms latency, noise growing with distance,
+  a small per-unit bias, quality 0..255 (0 without a sonar echo: no metric scale); its MaxBotix
+  HRLV-EZ4 sonar at 10 Hz, 0.3..5 m, 50 ms latency.
+* Side HRLV-EZ4 sonars (left, right): 10 Hz, 5 m.
+* TeraRanger One (bottom): 100 Hz, 0.2..14 m, 10 ms latency, +-2 cm.
+* The autopilot's IMU: mean acceleration per control tick, with noise and a residual bias.
+
+A reading is delivered at ``sample time + latency`` and stamped with its delivery time (what the
+onboard computer sees). A sensor under a ``sensor_dropout`` fault delivers nothing.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from dataclasses import dataclass
+
+from inspect_pipe.flight.scenario import SensorName
+from inspect_pipe.flight.vehicle_sim import QuadrotorSim
+from inspect_pipe.flight_stack.messages import BottomFlow, FrontFlow, ImuReading, Measurements, RangeReading
+
+__all__ = ["FlowSpec", "RangeSpec", "SensorSuite", "SensorSpecs"]
+
+
+@dataclass(frozen=True)
+class RangeSpec:
+    rate_hz: float
+    latency_s: float
+    min_range_m: float
+    max_range_m: float
+    noise_m: float
+    noise_per_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class FlowSpec:
+    rate_hz: float = 100.0
+    latency_s: float = 0.02
+    noise_m_s: float = 0.015
+    noise_per_m: float = 0.01  # flow noise grows with the distance to the textured surface
+    bias_m_s: float = 0.002  # std of the per-unit bias (gyro compensation, lens)
+    quality: int = 200
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    noise_m_s2: float = 0.05
+    bias_m_s2: float = 0.03  # std of the residual accelerometer bias after calibration
+
+
+@dataclass(frozen=True)
+class SensorSpecs:
+    flow: FlowSpec = FlowSpec()
+    imu: ImuSpec = ImuSpec()
+    sonar: RangeSpec = RangeSpec(10.0, 0.05, 0.3, 5.0, 0.005, 0.002)
+    tof: RangeSpec = RangeSpec(100.0, 0.01, 0.2, 14.0, 0.02)
+
+
+class _Channel:
+    """One periodic sensor output with a delivery queue."""
+
+    __slots__ = ("period", "latency", "next_t", "queue", "latest")
+
+    def __init__(self, rate_hz: float, latency_s: float, phase: float) -> None:
+        self.period = 1.0 / rate_hz
+        self.latency = latency_s
+        self.next_t = phase * self.period
+        self.queue: deque = deque()
+        self.latest = None
+
+    def deliver(self, now: float) -> None:
+        q = self.queue
+        while q and q[0][0] <= now:
+            self.latest = q.popleft()[1]
+
+
+class SensorSuite:
+    """All sensors of the vehicle; ``sample(sim, dropped)`` after each physics step,
+    ``read(now)`` at each control tick."""
+
+    def __init__(self, specs: SensorSpecs | None = None, *, seed: int = 0) -> None:
+        self.s = specs or SensorSpecs()
+        self.rng = random.Random(seed * 104729 + 3)
+        r = self.rng
+        fl, so, tof = self.s.flow, self.s.sonar, self.s.tof
+        self.ch = {
+            "bottom_flow": _Channel(fl.rate_hz, fl.latency_s, r.random()),
+            "bottom_sonar": _Channel(so.rate_hz, so.latency_s, r.random()),
+            "front_flow": _Channel(fl.rate_hz, fl.latency_s, r.random()),
+            "front_sonar": _Channel(so.rate_hz, so.latency_s, r.random()),
+            "left_sonar": _Channel(so.rate_hz, so.latency_s, r.random()),
+            "right_sonar": _Channel(so.rate_hz, so.latency_s, r.random()),
+            "bottom_tof": _Channel(tof.rate_hz, tof.latency_s, r.random()),
+        }
+        self._imu_prev = None
+        self._imu_bias = tuple(r.gauss(0, self.s.imu.bias_m_s2) for _ in range(3))
+        self.bias = {k: (r.gauss(0, fl.bias_m_s), r.gauss(0, fl.bias_m_s)) for k in ("bottom_flow", "front_flow")}
+        # Last sonar range each PX4Flow scales its flow with.
+        self._px_range: dict[str, float | None] = {"bottom_flow": None, "front_flow": None}
+        self._owner = {
+            "bottom_flow": SensorName.BOTTOM_FLOW, "bottom_sonar": SensorName.BOTTOM_FLOW,
+            "front_flow": SensorName.FRONT_FLOW, "front_sonar": SensorName.FRONT_FLOW,
+            "left_sonar": SensorName.LEFT_SONAR, "right_sonar": SensorName.RIGHT_SONAR,
+            "bottom_tof": SensorName.BOTTOM_TOF,
+        }
+        self._dirs = {
+            "bottom_sonar": (0.0, 0.0, -1.0), "bottom_tof": (0.0, 0.0, -1.0), "front_sonar": (1.0, 0.0, 0.0),
+            "left_sonar": (0.0, 1.0, 0.0), "right_sonar": (0.0, -1.0, 0.0),
+        }
+
+    def _imu(self, now: float, sim: QuadrotorSim) -> ImuReading | None:
+        v = sim.velocity
+        prev, self._imu_prev = self._imu_prev, (now, v)
+        if prev is None or now <= prev[0]:
+            return None
+        dt = now - prev[0]
+        ax, ay, az = ((v[k] - prev[1][k]) / dt for k in range(3))
+        _, _, yaw = sim.euler()
+        c, sn = math.cos(yaw), math.sin(yaw)
+        g, im = self.rng.gauss, self.s.imu
+        b = self._imu_bias
+        return ImuReading(
+            now,
+            c * ax + sn * ay + b[0] + g(0.0, im.noise_m_s2),
+            -sn * ax + c * ay + b[1] + g(0.0, im.noise_m_s2),
+            az + b[2] + g(0.0, im.noise_m_s2),
+        )
+
+    def _range(self, spec: RangeSpec, true_m: float | None) -> float | None:
+        if true_m is None or true_m > spec.max_range_m:
+            return None
+        noisy = true_m + self.rng.gauss(0.0, spec.noise_m + spec.noise_per_m * true_m)
+        return max(spec.min_range_m, round(noisy, 3))  # the HRLV reports its minimum when closer
+
+    def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName]) -> None:
+        t = sim.t
+        pos = None
+        for name, ch in self.ch.items():
+            if t + 1e-9 < ch.next_t:
+                continue
+            ch.next_t += ch.period
+            if self._owner[name] in dropped:
+                if name.endswith("flow"):
+                    self._px_range[name] = None
+                continue
+            if pos is None:
+                pos = sim.position
+            stamp = t + ch.latency  # delivery time: what the onboard clock stamps
+            ch.queue.append((stamp, self._measure(name, sim, pos, stamp)))
+
+    def _measure(self, name: str, sim: QuadrotorSim, pos, stamp: float):
+        s = self.s
+        if name in self._dirs:
+            spec = s.tof if name == "bottom_tof" else s.sonar
+            rng = self._range(spec, sim.ray(pos, self._dirs[name]))
+            if name == "bottom_sonar":
+                self._px_range["bottom_flow"] = rng
+            elif name == "front_sonar":
+                self._px_range["front_flow"] = rng
+            return RangeReading(stamp, rng)
+        # Optical flow, in the heading frame (gyro-compensated), scaled by the unit's sonar.
+        fl = s.flow
+        scale_range = self._px_range[name]
+        vx, vy, vz = sim.velocity
+        _, _, yaw = sim.euler()
+        c, sn = math.cos(yaw), math.sin(yaw)
+        hx, hy = c * vx + sn * vy, -sn * vx + c * vy
+        bx, by = self.bias[name]
+        g = self.rng.gauss
+        if scale_range is None:
+            sigma, quality = 0.0, 0
+        else:
+            sigma, quality = fl.noise_m_s + fl.noise_per_m * scale_range, fl.quality + int(g(0.0, 15.0))
+        quality = max(0, min(255, quality))
+        if sigma == 0.0:
+            a = b = 0.0  # no metric scale without an echo
+        elif name == "bottom_flow":
+            a, b = hx + bx + g(0.0, sigma), hy + by + g(0.0, sigma)
+        else:
+            a, b = hy + bx + g(0.0, sigma), vz + by + g(0.0, sigma)
+        return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, a, b, quality)
+
+    def read(self, now: float, sim: QuadrotorSim) -> Measurements:
+        """Latest reading each sensor has delivered by ``now``, and the IMU's mean acceleration
+        since the previous read (heading frame, gravity removed)."""
+        out: dict = {"imu": self._imu(now, sim)}
+        for name, ch in self.ch.items():
+            ch.deliver(now)
+            out[name] = ch.latest
+        return Measurements(**out)

@@ -1,0 +1,237 @@
+"""MuJoCo quadrotor in a cargo hold, with the autopilot firmware's attitude controller.
+
+The vehicle is an AscTec Hummingbird-like quadrotor built from primitive shapes (0.71 kg with the
+inspection payload, thrust-to-weight 2.2). The firmware tracks roll, pitch, yaw rate and collective
+thrust set-points (``AttitudeSetpoint``) at the physics rate, with first-order motor lag; rotor drag
+and a slowly varying air disturbance act on the body. Headless, deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from inspect_pipe.flight.scenario import World
+from inspect_pipe.flight_stack.messages import AttitudeSetpoint
+
+__all__ = ["AttitudeFirmware", "QuadrotorSim", "VehicleModel", "build_mjcf"]
+
+G = 9.81
+
+
+@dataclass(frozen=True)
+class VehicleModel:
+    mass_kg: float = 0.71
+    thrust_to_weight: float = 2.2
+    arm_m: float = 0.17
+    rotor_radius_m: float = 0.1
+    leg_height_m: float = 0.08  # centre height when landed
+    drag_linear_n_s_m: float = 0.25  # rotor drag, N per m/s
+    drag_quadratic_n_s2_m2: float = 0.05
+    motor_time_constant_s: float = 0.03
+    disturbance_force_n: float = 0.03  # std of the air disturbance
+    disturbance_time_constant_s: float = 2.0
+
+    @property
+    def max_thrust_n(self) -> float:
+        return self.thrust_to_weight * self.mass_kg * G
+
+
+@dataclass(frozen=True)
+class AttitudeFirmware:
+    """PD attitude control as in the autopilot firmware (natural frequency, damping)."""
+
+    omega_rp_rad_s: float = 28.0
+    zeta_rp: float = 0.8
+    omega_yaw_rad_s: float = 8.0
+    zeta_yaw: float = 0.9
+    max_tilt_rad: float = 0.6
+
+
+def build_mjcf(world: World, vehicle: VehicleModel, start: tuple[float, float, float], yaw: float, timestep_s: float) -> str:
+    h = world.hold
+    L, W, H = h.length_m, h.width_m, h.height_m
+    t = 0.1
+    env = [
+        f'<geom name="floor" type="box" pos="{L / 2} 0 {-t / 2}" size="{L / 2 + t} {W / 2 + t} {t / 2}"/>',
+        f'<geom name="back_wall" type="box" pos="{-t / 2} 0 {H / 2}" size="{t / 2} {W / 2 + t} {H / 2}"/>',
+        f'<geom name="front_wall" type="box" pos="{L + t / 2} 0 {H / 2}" size="{t / 2} {W / 2 + t} {H / 2}"/>',
+        f'<geom name="left_wall" type="box" pos="{L / 2} {W / 2 + t / 2} {H / 2}" size="{L / 2 + t} {t / 2} {H / 2}"/>',
+        f'<geom name="right_wall" type="box" pos="{L / 2} {-W / 2 - t / 2} {H / 2}" size="{L / 2 + t} {t / 2} {H / 2}"/>',
+    ]
+    for i, b in enumerate(world.boxes):
+        c = [(b.min_m[k] + b.max_m[k]) / 2 for k in range(3)]
+        s = [(b.max_m[k] - b.min_m[k]) / 2 for k in range(3)]
+        env.append(f'<geom name="box{i}" type="box" pos="{c[0]} {c[1]} {c[2]}" size="{s[0]} {s[1]} {s[2]}"/>')
+    a, r, lh = vehicle.arm_m, vehicle.rotor_radius_m, vehicle.leg_height_m
+    m = vehicle.mass_kg
+    parts = [
+        f'<geom name="core" type="box" size="0.06 0.06 0.03" mass="{m * 0.62:.4f}"/>',
+        f'<geom name="payload" type="box" pos="0.04 0 -0.035" size="0.04 0.03 0.015" mass="{m * 0.1:.4f}"/>',
+    ]
+    for k, (dx, dy) in enumerate([(a, 0), (0, a), (-a, 0), (0, -a)]):
+        parts.append(f'<geom name="arm{k}" type="capsule" fromto="0 0 0 {dx} {dy} 0" size="0.008" mass="{m * 0.03:.4f}"/>')
+        parts.append(
+            f'<geom name="rotor{k}" type="cylinder" pos="{dx} {dy} 0.02" size="{r} 0.005" mass="{m * 0.035:.4f}"/>'
+        )
+    for k, (dx, dy) in enumerate([(0.07, 0.07), (-0.07, 0.07), (-0.07, -0.07), (0.07, -0.07)]):
+        parts.append(
+            f'<geom name="leg{k}" type="capsule" fromto="{dx} {dy} -0.03 {dx} {dy} {-lh + 0.006}" size="0.006" mass="{m * 0.005:.4f}"/>'
+        )
+    qw, qz = math.cos(yaw / 2), math.sin(yaw / 2)
+    x, y, z = start
+    return f"""
+<mujoco model="cargo_hold">
+  <option timestep="{timestep_s}" integrator="Euler" gravity="0 0 {-G}">
+    <flag energy="disable" warmstart="enable"/>
+  </option>
+  <default><geom friction="0.8 0.01 0.001" rgba="0.6 0.6 0.6 1"/></default>
+  <worldbody>
+    {''.join(env)}
+    <body name="mav" pos="{x} {y} {z + lh}" quat="{qw} 0 0 {qz}">
+      <freejoint/>
+      {''.join(parts)}
+    </body>
+  </worldbody>
+</mujoco>"""
+
+
+class QuadrotorSim:
+    """Physics and firmware. ``set_setpoint`` then ``step(n)`` physics steps; state read back
+    from properties. Ray casts for the sensors use the MuJoCo scene."""
+
+    def __init__(
+        self,
+        world: World,
+        start: tuple[float, float, float],
+        yaw: float = 0.0,
+        *,
+        vehicle: VehicleModel | None = None,
+        firmware: AttitudeFirmware | None = None,
+        physics_hz: float = 400.0,
+        seed: int = 0,
+    ) -> None:
+        self.vehicle = vehicle or VehicleModel()
+        self.firmware = firmware or AttitudeFirmware()
+        self.dt = 1.0 / physics_hz
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(world, self.vehicle, start, yaw, self.dt))
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_forward(self.model, self.data)
+        self.body = self.model.body("mav").id
+        inertia = self.model.body_inertia[self.body]
+        self.ixx, self.iyy, self.izz = (float(v) for v in inertia)
+        self.mass = float(self.model.body_subtreemass[self.body])
+        self.rng = random.Random(seed * 7919 + 1)
+        self.t = 0.0
+        self.setpoint = AttitudeSetpoint()
+        self.thrust_n = 0.0
+        self.yaw_sp = yaw
+        self._dist = [0.0, 0.0, 0.0]
+        self._ray_vec = np.zeros(3)
+        self._ray_pnt = np.zeros(3)
+        self._geomid = np.zeros(1, dtype=np.int32)
+        self._xfrc = self.data.xfrc_applied[self.body]
+
+    # ------------------------------------------------------------------ state
+    @property
+    def position(self) -> tuple[float, float, float]:
+        q = self.data.qpos
+        return (float(q[0]), float(q[1]), float(q[2]))
+
+    @property
+    def velocity(self) -> tuple[float, float, float]:
+        v = self.data.qvel
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    @property
+    def body_rates(self) -> tuple[float, float, float]:
+        v = self.data.qvel
+        return (float(v[3]), float(v[4]), float(v[5]))
+
+    def euler(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) in rad, ZYX convention."""
+        w, x, y, z = (float(v) for v in self.data.qpos[3:7])
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        return roll, pitch, yaw
+
+    def rotation(self) -> np.ndarray:
+        return self.data.xmat[self.body].reshape(3, 3)
+
+    # ------------------------------------------------------------------ control and physics
+    def set_setpoint(self, sp: AttitudeSetpoint) -> None:
+        self.setpoint = sp
+
+    def step(self, n: int = 1) -> None:
+        m, d = self.model, self.data
+        fw, veh = self.firmware, self.vehicle
+        dt = self.dt
+        wrp, zrp = fw.omega_rp_rad_s, fw.zeta_rp
+        kp_rp, kd_rp = wrp * wrp, 2 * zrp * wrp
+        kp_y, kd_y = fw.omega_yaw_rad_s ** 2, 2 * fw.zeta_yaw * fw.omega_yaw_rad_s
+        alpha = dt / (veh.motor_time_constant_s + dt)
+        tmax = veh.max_thrust_n
+        c1, c2 = veh.drag_linear_n_s_m, veh.drag_quadratic_n_s2_m2
+        dist_a = dt / veh.disturbance_time_constant_s
+        dist_s = veh.disturbance_force_n * math.sqrt(2 * dist_a)
+        gauss = self.rng.gauss
+        qpos, qvel, xmat = d.qpos, d.qvel, d.xmat
+        xfrc = self._xfrc
+        sp = self.setpoint
+        roll_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.roll_rad))
+        pitch_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.pitch_rad))
+        thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax
+        armed = thrust_sp > 0.0 or self.thrust_n > 0.01
+        for _ in range(n):
+            w, x, y, z = qpos[3], qpos[4], qpos[5], qpos[6]
+            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            p, q, r = qvel[3], qvel[4], qvel[5]
+            self.thrust_n += alpha * (thrust_sp - self.thrust_n)
+            dist = self._dist
+            for k in range(3):
+                dist[k] += -dist_a * dist[k] + dist_s * gauss(0.0, 1.0)
+            vx, vy, vz = qvel[0], qvel[1], qvel[2]
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+            cd = c1 + c2 * speed
+            if armed:
+                self.yaw_sp += sp.yaw_rate_rad_s * dt
+                yaw_err = (self.yaw_sp - yaw + math.pi) % (2 * math.pi) - math.pi
+                tx = self.ixx * (kp_rp * (roll_sp - roll) - kd_rp * p)
+                ty = self.iyy * (kp_rp * (pitch_sp - pitch) - kd_rp * q)
+                tz = self.izz * (kp_y * yaw_err + kd_y * (sp.yaw_rate_rad_s - r))
+                fx, fy = dist[0], dist[1]
+                fz = dist[2]
+            else:
+                self.yaw_sp = yaw
+                tx = ty = tz = fx = fy = fz = 0.0
+            R = xmat[self.body]
+            T = self.thrust_n
+            xfrc[0] = R[2] * T + fx - cd * vx
+            xfrc[1] = R[5] * T + fy - cd * vy
+            xfrc[2] = R[8] * T + fz - cd * vz
+            xfrc[3] = R[0] * tx + R[1] * ty + R[2] * tz
+            xfrc[4] = R[3] * tx + R[4] * ty + R[5] * tz
+            xfrc[5] = R[6] * tx + R[7] * ty + R[8] * tz
+            mujoco.mj_step(m, d)
+        self.t += n * dt
+
+    # ------------------------------------------------------------------ sensing
+    def ray(self, origin: tuple[float, float, float], direction_body: tuple[float, float, float]) -> float | None:
+        """Distance along a body-frame direction from ``origin`` (world) to the scene, or None."""
+        R = self.data.xmat[self.body]
+        dx, dy, dz = direction_body
+        v = self._ray_vec
+        v[0] = R[0] * dx + R[1] * dy + R[2] * dz
+        v[1] = R[3] * dx + R[4] * dy + R[5] * dz
+        v[2] = R[6] * dx + R[7] * dy + R[8] * dz
+        pnt = self._ray_pnt
+        pnt[0], pnt[1], pnt[2] = origin
+        dist = mujoco.mj_ray(self.model, self.data, pnt, v, None, True, self.body, self._geomid)
+        return None if dist < 0 else float(dist)

@@ -1,0 +1,105 @@
+"""The MAV_behaviors node: the paper's Fig. 3 wired with the arbitration composites."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from inspect_pipe.flight_stack.arbitration import MotorSchema, Multiplexer, Subsumption
+from inspect_pipe.flight_stack.behaviors._obstacle_math import clamp
+from inspect_pipe.flight_stack.behaviors.attenuated_go import AttenuatedGo
+from inspect_pipe.flight_stack.behaviors.attenuated_inspect import AttenuatedInspect
+from inspect_pipe.flight_stack.behaviors.ensure_reference_surface_detection import EnsureReferenceSurfaceDetection
+from inspect_pipe.flight_stack.behaviors.go_ahead import GoAhead
+from inspect_pipe.flight_stack.behaviors.inspect_ahead import InspectAhead
+from inspect_pipe.flight_stack.behaviors.limit_max_height import LimitMaxHeight
+from inspect_pipe.flight_stack.behaviors.low_battery_land import LowBatteryLand
+from inspect_pipe.flight_stack.behaviors.prevent_collision import PreventCollision
+from inspect_pipe.flight_stack.behaviors.waiting_for_connectivity import WaitingForConnectivity
+from inspect_pipe.flight_stack.messages import (
+    HOVER,
+    BehaviorInputs,
+    Button,
+    Clearance,
+    OperatorInput,
+    SpeedCommand,
+    StateEstimate,
+)
+from inspect_pipe.flight_stack.params import BehaviorParams
+
+
+@dataclass(frozen=True, slots=True)
+class BehaviorsOutput:
+    """The safe speed set-point, who shaped it, and whether flight is still viable."""
+
+    command: SpeedCommand
+    behaviors: tuple[str, ...]
+    land_request: bool
+
+
+def _inspection(inputs: BehaviorInputs) -> bool:
+    return inputs.inspection_mode
+
+
+class MAVBehaviors:
+    """Combines the user's desired speed with the sensor data into a safe speed command.
+
+    Priority (highest first), per axis: B safety (motor schema of prevent_collision,
+    limit_max_height, ensure_reference_surface_detection) > C autonomy (go_ahead | inspect_ahead,
+    multiplexed by inspection mode) > A user intention (waiting_for_connectivity >
+    attenuated_go | attenuated_inspect). D (low_battery_land) only decides whether to land.
+    """
+
+    def __init__(self, params: BehaviorParams | None = None) -> None:
+        p = self.p = params or BehaviorParams()
+        self.inspection_mode = False
+        self.low_battery_land = LowBatteryLand(p)
+        safety = MotorSchema(
+            [(PreventCollision(p), 1.0), (LimitMaxHeight(p), 1.0), (EnsureReferenceSurfaceDetection(p), 1.0)]
+        )
+        autonomy = Multiplexer(_inspection, {False: GoAhead(p), True: InspectAhead(p)})
+        user = Subsumption(
+            [WaitingForConnectivity(p), Multiplexer(_inspection, {False: AttenuatedGo(p), True: AttenuatedInspect(p)})]
+        )
+        self.root = Subsumption([safety, autonomy, user])
+
+    def update(
+        self,
+        now_s: float,
+        estimate: StateEstimate,
+        clearance: Clearance,
+        operator: OperatorInput,
+        *,
+        battery_percent: float,
+        flying: bool,
+        dt: float,
+    ) -> BehaviorsOutput:
+        buttons = operator.buttons if operator.link_ok else frozenset()
+        if Button.INSPECTION_MODE_ON in buttons:
+            self.inspection_mode = True
+        if Button.INSPECTION_MODE_OFF in buttons:
+            self.inspection_mode = False
+        inputs = BehaviorInputs(
+            now_s=now_s,
+            estimate=estimate,
+            clearance=clearance,
+            stick=operator.stick if operator.link_ok else HOVER,
+            link_ok=operator.link_ok,
+            inspection_mode=self.inspection_mode,
+            go_ahead_pressed=Button.GO_AHEAD in buttons,
+            battery_percent=battery_percent,
+            flying=flying,
+        )
+        out = self.root.evaluate(inputs, dt)
+        names = list(out.sources) if out is not None else []
+        cmd = out.vector.to_command() if out is not None else HOVER
+        p = self.p
+        cmd = SpeedCommand(
+            clamp(cmd.vx_m_s, p.max_speed_m_s),
+            clamp(cmd.vy_m_s, p.max_speed_m_s),
+            clamp(cmd.vz_m_s, p.max_vertical_speed_m_s),
+            cmd.yaw_rate_rad_s,
+        )
+        viable = self.low_battery_land.viable(inputs)
+        if not viable:
+            names.append(self.low_battery_land.name)
+        return BehaviorsOutput(cmd, tuple(names), land_request=not viable)

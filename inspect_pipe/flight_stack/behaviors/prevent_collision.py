@@ -1,0 +1,52 @@
+"""prevent_collision: a repulsive vector away from obstacles closer than the safe distance, and a
+stop on any axis whose current speed would carry the vehicle inside it.
+
+The stop is predicted from the distance brought to ``now`` (sensor age and latency), the speed
+loop's response time and a braking deceleration, so the vehicle halts at the safe distance whether
+it approaches at 0.4 m/s or 1 m/s; a distance-only rule would react a sensor period late.
+"""
+
+from __future__ import annotations
+
+from inspect_pipe.flight_stack.behaviors._obstacle_math import must_stop, repulsion_m_s
+from inspect_pipe.flight_stack.messages import AxisVector, BehaviorInputs
+from inspect_pipe.flight_stack.params import BehaviorParams
+
+
+class PreventCollision:
+    name = "prevent_collision"
+
+    def __init__(self, params: BehaviorParams) -> None:
+        self.p = params
+
+    def activate(self) -> None:
+        pass
+
+    def _axis(self, distance_m: float | None, closing_m_s: float) -> float | None:
+        """Speed along the direction towards the obstacle (negative: away), or None."""
+        p = self.p
+        if distance_m is None:
+            return None
+        if distance_m < p.safe_distance_m:
+            return -repulsion_m_s(distance_m, safe_m=p.safe_distance_m, gain_1_s=p.repulsion_gain_1_s, max_m_s=p.repulsion_max_m_s)
+        if must_stop(
+            distance_m, closing_m_s, safe_m=p.safe_distance_m,
+            response_time_s=p.response_time_s, decel_m_s2=p.brake_decel_m_s2,
+        ):
+            return 0.0
+        return None
+
+    def update(self, inputs: BehaviorInputs, dt: float) -> AxisVector | None:
+        if not inputs.flying:
+            return None
+        c, e = inputs.clearance, inputs.estimate
+        vx = self._axis(c.front_m, e.vx_m_s)
+        left = self._axis(c.left_m, e.vy_m_s)
+        right = self._axis(c.right_m, -e.vy_m_s)
+        if left is None and right is None:
+            vy = None
+        else:
+            vy = (left or 0.0) - (right or 0.0)
+        if vx is None and vy is None:
+            return None
+        return AxisVector(vx_m_s=vx, vy_m_s=vy)

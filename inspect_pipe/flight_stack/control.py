@@ -1,0 +1,105 @@
+"""Speed and height control: PID speed controllers on X, Y, Z and a height PID that replaces the
+vertical speed PID when the vertical command is zero. Output is the attitude and thrust set-point
+that the autopilot firmware's attitude controller tracks."""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from inspect_pipe.flight_stack.messages import AttitudeSetpoint, SpeedCommand, StateEstimate
+from inspect_pipe.flight_stack.params import ControlParams
+
+__all__ = ["FlightController", "PID", "VerticalMode"]
+
+G = 9.81
+
+
+class PID:
+    """PID with a clamped integrator and optional measured derivative. Time step passed in."""
+
+    def __init__(self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf) -> None:
+        self.kp, self.ki, self.kd = kp, ki, kd
+        self.integral_limit = integral_limit
+        self.integral = 0.0
+        self._prev_error: float | None = None
+
+    def reset(self, integral: float = 0.0) -> None:
+        self.integral = integral
+        self._prev_error = None
+
+    def update(self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False) -> float:
+        """``rate``: d(error)/dt when measured directly (avoids differentiating noise)."""
+        if not freeze and dt > 0.0:
+            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + self.ki * error * dt))
+        if rate is None:
+            rate = 0.0 if self._prev_error is None or dt <= 0.0 else (error - self._prev_error) / dt
+        self._prev_error = error
+        return self.kp * error + self.integral + self.kd * rate
+
+
+class VerticalMode(enum.Enum):
+    SPEED = "speed"
+    HEIGHT = "height"
+
+
+class FlightController:
+    """Runs on the paper's secondary ARM7: speed command + state estimate -> attitude set-point."""
+
+    def __init__(self, params: ControlParams | None = None) -> None:
+        p = self.p = params or ControlParams()
+        lim = p.integral_limit_m_s2
+        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
+        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
+        self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=lim)
+        self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=lim)
+        self.height_ref_m: float | None = None
+        self.vertical_mode = VerticalMode.SPEED
+
+    def reset(self) -> None:
+        for pid in (self.pid_vx, self.pid_vy, self.pid_vz, self.pid_height):
+            pid.reset()
+        self.height_ref_m = None
+        self.vertical_mode = VerticalMode.SPEED
+
+    def hold_height(self, ref_m: float) -> None:
+        self.height_ref_m = ref_m
+
+    def update(
+        self,
+        cmd: SpeedCommand,
+        est: StateEstimate,
+        dt: float,
+        *,
+        allow_height_hold: bool = True,
+        freeze_integrators: bool = False,
+        thrust_cap_frac: float = 1.0,
+    ) -> AttitudeSetpoint:
+        p = self.p
+        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_integrators)
+        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_integrators)
+        mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED
+        if mode is VerticalMode.HEIGHT:
+            if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:
+                if self.height_ref_m is None:
+                    self.height_ref_m = est.altitude_m
+                # Bumpless hand-over: the speed loop's trim becomes the height loop's.
+                self.pid_height.reset(self.pid_vz.integral)
+            err = self.height_ref_m - est.altitude_m
+            az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators)
+        else:
+            if self.vertical_mode is VerticalMode.HEIGHT:
+                self.pid_vz.reset(self.pid_height.integral)
+            self.height_ref_m = None
+            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators)
+        self.vertical_mode = mode
+
+        amax = G * math.tan(p.max_tilt_rad)
+        ax = max(-amax, min(amax, ax))
+        ay = max(-amax, min(amax, ay))
+        az = max(-p.max_vertical_accel_m_s2, min(p.max_vertical_accel_m_s2, az))
+        pitch = math.atan2(ax, G)
+        roll = -math.atan2(ay, G)
+        thrust = p.hover_thrust_frac * (1.0 + az / G) / (math.cos(roll) * math.cos(pitch))
+        thrust = max(0.0, min(thrust, 1.0, thrust_cap_frac))
+        return AttitudeSetpoint(roll_rad=roll, pitch_rad=pitch, yaw_rate_rad_s=cmd.yaw_rate_rad_s, thrust_frac=thrust)

@@ -1,0 +1,234 @@
+"""State estimation: the paper's ``MAV_state_updater`` node and its height estimator.
+
+Speeds and height are built from whichever sensors are valid (Table I); optical-flow speeds are
+always preferred over range derivatives. Range derivatives come from a small observer that
+propagates with the autopilot's IMU acceleration between the (10 Hz, delayed) range samples, so a
+derivative is neither noisy nor late. The alarm modes (-1, -2) fill the missing state with a
+positive vertical speed and zero horizontal speed, so that the speed controllers make the vehicle
+descend.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from inspect_pipe.flight_stack.messages import (
+    Clearance,
+    EstimationMode,
+    Measurements,
+    RangeReading,
+    StateEstimate,
+)
+from inspect_pipe.flight_stack.params import EstimationParams
+
+__all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "SensorStatus", "select_mode"]
+
+
+class RangeObserver:
+    """Range and range rate: propagated with a known acceleration, corrected by delayed samples.
+
+    Second-order observer with gains ``k1`` (1/s) and ``k2`` (1/s^2); state valid at ``self.t``.
+    """
+
+    def __init__(self, *, k1: float, k2: float, max_gap_s: float = 1.0) -> None:
+        self.k1, self.k2 = k1, k2
+        self.max_gap_s = max_gap_s
+        self.value: float | None = None
+        self.rate = 0.0
+        self.t = 0.0
+        self.last_sample_t: float | None = None
+
+    def propagate(self, t: float, accel: float = 0.0, rate: float | None = None) -> None:
+        """Advance to ``t`` with ``accel``; or with a measured ``rate`` that replaces the estimate."""
+        dt = t - self.t
+        self.t = t
+        if self.value is None or dt <= 0.0:
+            if rate is not None:
+                self.rate = rate
+            return
+        if rate is not None:
+            self.value += 0.5 * (self.rate + rate) * dt
+            self.rate = rate
+        else:
+            self.value += self.rate * dt + 0.5 * accel * dt * dt
+            self.rate += accel * dt
+
+    def at(self, t_meas: float) -> float:
+        """The estimate back-dated to ``t_meas`` (a delayed sample is compared with this)."""
+        return (self.value or 0.0) - self.rate * (self.t - t_meas)
+
+    def correct(self, z: float, t_meas: float) -> None:
+        last, self.last_sample_t = self.last_sample_t, t_meas
+        if self.value is None or last is None or t_meas - last > self.max_gap_s:
+            self.value = z + self.rate * (self.t - t_meas)
+            return
+        ts = min(max(t_meas - last, 1e-3), 0.3)
+        r = z - self.at(t_meas)
+        self.value += min(self.k1 * ts, 1.0) * r
+        self.rate += self.k2 * ts * r
+
+
+class HeightEstimator:
+    """Altitude over the take-off floor from a downward range, robust to floor steps.
+
+    A change between consecutive ranges that vertical motion cannot explain (more than
+    ``jump_m`` away from the prediction) is a discontinuity of the floor, e.g. overflying a box:
+    it moves the floor offset instead of the altitude. ``height`` (range to the surface below)
+    steps with the floor while ``altitude`` stays continuous.
+    """
+
+    def __init__(self, *, jump_m: float, k1: float, k2: float) -> None:
+        self.jump_m = jump_m
+        self.floor_offset_m = 0.0
+        self.obs = RangeObserver(k1=k1, k2=k2)
+
+    @property
+    def altitude_m(self) -> float:
+        return self.obs.value or 0.0
+
+    @property
+    def height_m(self) -> float:
+        return self.altitude_m - self.floor_offset_m
+
+    @property
+    def rate_m_s(self) -> float:
+        return self.obs.rate
+
+    def propagate(self, t: float, accel: float = 0.0, rate: float | None = None) -> None:
+        self.obs.propagate(t, accel, rate)
+
+    def update(self, range_m: float, t_meas: float) -> None:
+        o = self.obs
+        fresh = o.value is None or o.last_sample_t is None or t_meas - o.last_sample_t > o.max_gap_s
+        raw = range_m + self.floor_offset_m
+        if not fresh:
+            pred = o.at(t_meas)
+            if abs(raw - pred) > self.jump_m:
+                self.floor_offset_m += pred - raw
+                raw = pred
+        o.correct(raw, t_meas)
+
+
+@dataclass(frozen=True, slots=True)
+class SensorStatus:
+    """Which sensors are valid this tick (the data columns of Table I)."""
+
+    bottom_px: bool
+    bottom_tof: bool
+    front_px: bool
+
+
+def select_mode(status: SensorStatus) -> EstimationMode:
+    """Table I: estimation mode from the valid sensor set."""
+    if status.bottom_px:
+        return EstimationMode.BOTTOM_FRONT if status.front_px else EstimationMode.BOTTOM
+    if status.front_px:
+        return EstimationMode.TOF_FRONT if status.bottom_tof else EstimationMode.FRONT
+    return EstimationMode.ALARM_TOF if status.bottom_tof else EstimationMode.ALARM_NONE
+
+
+def _fresh_range(r: RangeReading | None, now: float, timeout: float, max_range: float) -> bool:
+    return r is not None and now - r.stamp_s <= timeout and r.range_m is not None and r.range_m <= max_range
+
+
+class MAVStateUpdater:
+    """The paper's MAV_state_updater: speeds, height and obstacle distances each tick.
+
+    ``update(now, measurements)`` returns the estimate and the clearances, both valid at ``now``.
+    """
+
+    def __init__(self, params: EstimationParams | None = None) -> None:
+        self.p = params or EstimationParams()
+        p = self.p
+        self.height = HeightEstimator(jump_m=p.height_jump_m, k1=p.observer_k1_1_s, k2=p.observer_k2_1_s2)
+        self.front = RangeObserver(k1=p.observer_k1_1_s, k2=p.observer_k2_1_s2)
+        self._last_height_stamp = -1.0
+        self._last_front_stamp = -1.0
+
+    def status(self, now: float, m: Measurements) -> SensorStatus:
+        p = self.p
+        b_sonar = _fresh_range(m.bottom_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m)
+        f_sonar = _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m)
+        bf, ff = m.bottom_flow, m.front_flow
+        b_flow = bf is not None and now - bf.stamp_s <= p.flow_timeout_s and bf.quality >= p.flow_min_quality
+        f_flow = ff is not None and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
+        return SensorStatus(
+            bottom_px=b_flow and b_sonar,
+            bottom_tof=_fresh_range(m.bottom_tof, now, p.tof_timeout_s, p.tof_max_range_m),
+            front_px=f_flow and f_sonar,
+        )
+
+    def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
+        p = self.p
+        status = self.status(now, m)
+        mode = select_mode(status)
+        imu = m.imu
+        ax = imu.ax_m_s2 if imu is not None else 0.0
+        az = imu.az_m_s2 if imu is not None else 0.0
+        bflow = m.bottom_flow if status.bottom_px else None
+        fflow = m.front_flow if status.front_px else None
+
+        # Front range (vx in modes 2 and 3, front clearance always). Flow speed, when there is
+        # one, drives the range between samples; otherwise the IMU does.
+        self.front.propagate(now, -ax, -bflow.vx_m_s if bflow is not None else None)
+        fs = m.front_sonar
+        if fs is not None and fs.range_m is not None and fs.stamp_s != self._last_front_stamp:
+            self._last_front_stamp = fs.stamp_s
+            self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
+
+        # Horizontal speeds: flow preferred over range derivative; zero in alarm.
+        if bflow is not None:
+            vx, vy = bflow.vx_m_s, bflow.vy_m_s
+        elif fflow is not None:
+            vx, vy = -self.front.rate, fflow.vy_m_s
+        else:
+            vx = vy = 0.0
+
+        # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
+        # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.
+        vz_flow = fflow.vz_m_s if fflow is not None else None
+        source, latency = None, 0.0
+        if status.bottom_px:
+            source, latency = m.bottom_sonar, p.sonar_latency_s
+        elif status.bottom_tof:
+            source, latency = m.bottom_tof, p.tof_latency_s
+        if source is None and vz_flow is None:
+            self.height.propagate(now, rate=p.alarm_climb_m_s)
+        else:
+            self.height.propagate(now, az, vz_flow)
+        if source is not None and source.stamp_s != self._last_height_stamp:
+            self._last_height_stamp = source.stamp_s
+            self.height.update(source.range_m, source.stamp_s - latency)  # type: ignore[arg-type]
+
+        if mode < 0:
+            vz = p.alarm_climb_m_s  # "+val.": the controllers will make the vehicle descend
+        else:
+            vz = vz_flow if vz_flow is not None else self.height.rate_m_s
+
+        est = StateEstimate(
+            height_m=self.height.height_m,
+            altitude_m=self.height.altitude_m,
+            vx_m_s=vx,
+            vy_m_s=vy,
+            vz_m_s=vz,
+            mode=mode,
+        )
+        return est, self._clearance(now, m, est)
+
+    def _clearance(self, now: float, m: Measurements, est: StateEstimate) -> Clearance:
+        """Obstacle distances brought to ``now``: a 10 Hz sonar reading is up to 0.15 s old."""
+        p = self.p
+
+        def at_now(r: RangeReading | None, closing_m_s: float) -> float | None:
+            if not _fresh_range(r, now, p.sonar_timeout_s, p.sonar_max_range_m):
+                return None
+            age = now - r.stamp_s + p.sonar_latency_s  # type: ignore[union-attr]
+            return r.range_m - closing_m_s * age  # type: ignore[union-attr,operator]
+
+        front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
+        return Clearance(
+            front_m=front if front is not None else None,
+            left_m=at_now(m.left_sonar, est.vy_m_s),
+            right_m=at_now(m.right_sonar, -est.vy_m_s),
+            down_m=est.height_m if est.mode != EstimationMode.ALARM_NONE else None,
+        )

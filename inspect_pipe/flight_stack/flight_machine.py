@@ -1,0 +1,102 @@
+"""Flight control state machine (the paper's Fig. 4): landed, taking_off, flying, descending,
+landing."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from inspect_pipe.flight_stack.messages import EstimationMode, StateEstimate
+from inspect_pipe.flight_stack.params import FlightMachineParams
+
+__all__ = ["FlightMachine", "FlightState", "FlightEvents"]
+
+
+class FlightState(str, enum.Enum):
+    LANDED = "landed"
+    TAKING_OFF = "taking_off"
+    FLYING = "flying"
+    DESCENDING = "descending"
+    LANDING = "landing"
+
+
+@dataclass(frozen=True, slots=True)
+class FlightEvents:
+    """What the machine reacts to in one tick."""
+
+    takeoff_pressed: bool = False
+    land_requested: bool = False  # land button or low_battery_land
+    high_thrust: bool = False  # collective thrust at or above hover
+
+
+class FlightMachine:
+    """Transitions on user buttons, the estimated height, time and thrust. ``now`` passed in.
+
+    landed -> taking_off: take-off button (unless landing is requested, e.g. low battery).
+    taking_off -> flying: height above ``takeoff_end_height_m`` or ``takeoff_high_thrust_s`` at
+    high thrust. taking_off/flying -> descending: land button or low battery.
+    descending -> landing: height below ``descend_end_height_m``.
+    flying -> landing: alarm mode -1 below that height, or alarm mode -2 for
+    ``alarm_none_land_s`` (no height reference at all: the descent must end on the floor).
+    landing -> landed: touchdown (height at the sonar's minimum, no vertical speed) and the thrust
+    ramp-down finished, or the ramp's time-out.
+    """
+
+    alarm_none_land_s = 4.0
+
+    def __init__(self, params: FlightMachineParams | None = None) -> None:
+        self.p = params or FlightMachineParams()
+        self.state = FlightState.LANDED
+        self.entered_s = 0.0
+        self.high_thrust_s = 0.0
+        self.alarm_none_since: float | None = None
+        self.touchdown_s: float | None = None
+
+    def _go(self, state: FlightState, now: float) -> None:
+        self.state = state
+        self.entered_s = now
+        self.high_thrust_s = 0.0
+        self.touchdown_s = None
+
+    def time_in_state(self, now: float) -> float:
+        return now - self.entered_s
+
+    def update(self, now: float, dt: float, est: StateEstimate, ev: FlightEvents) -> FlightState:
+        p, s = self.p, self.state
+        if s is FlightState.LANDED:
+            if ev.takeoff_pressed and not ev.land_requested:
+                self._go(FlightState.TAKING_OFF, now)
+        elif s is FlightState.TAKING_OFF:
+            self.high_thrust_s = self.high_thrust_s + dt if ev.high_thrust else 0.0
+            if ev.land_requested:
+                self._go(FlightState.DESCENDING, now)
+            elif est.mode >= 0 and est.height_m >= p.takeoff_end_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
+                self._go(FlightState.FLYING, now)
+        elif s is FlightState.FLYING:
+            if est.mode == EstimationMode.ALARM_NONE:
+                self.alarm_none_since = now if self.alarm_none_since is None else self.alarm_none_since
+            else:
+                self.alarm_none_since = None
+            if ev.land_requested:
+                self._go(FlightState.DESCENDING, now)
+            elif est.mode == EstimationMode.ALARM_TOF and est.height_m < p.descend_end_height_m:
+                self._go(FlightState.LANDING, now)
+            elif self.alarm_none_since is not None and now - self.alarm_none_since >= self.alarm_none_land_s:
+                self._go(FlightState.LANDING, now)
+        elif s is FlightState.DESCENDING:
+            if est.height_m < p.descend_end_height_m or (est.mode < 0 and self.time_in_state(now) > 10.0):
+                self._go(FlightState.LANDING, now)
+        elif s is FlightState.LANDING:
+            on_ground = est.height_m <= 0.35 and abs(est.vz_m_s) < 0.15
+            if self.touchdown_s is None and (on_ground or self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0):
+                self.touchdown_s = now
+            if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:
+                self._go(FlightState.LANDED, now)
+        return self.state
+
+    def thrust_cap(self, now: float, hover_thrust_frac: float) -> float:
+        """Landing: after touchdown the thrust ramps down linearly from hover to zero."""
+        if self.state is FlightState.LANDING and self.touchdown_s is not None:
+            k = 1.0 - (now - self.touchdown_s) / self.p.landing_ramp_s
+            return max(0.0, hover_thrust_frac * k)
+        return 1.0

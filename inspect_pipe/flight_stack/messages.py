@@ -1,0 +1,203 @@
+"""Typed messages passed between the onboard nodes, one tick at a time.
+
+Body axes follow the paper: X longitudinal (forward), Y lateral (left), Z vertical (up); speeds are
+expressed in the heading frame (body axes with roll and pitch removed), which is what a
+gyro-compensated PX4Flow reports.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class EstimationMode(enum.IntEnum):
+    """Table I of the paper: which sensors the state estimate is built from."""
+
+    BOTTOM = 0  # bottom PX4Flow (+ TeraRanger in range)
+    BOTTOM_FRONT = 1  # both PX4Flow sensors
+    TOF_FRONT = 2  # TeraRanger height, front PX4Flow speeds
+    FRONT = 3  # front PX4Flow only; height integrated
+    ALARM_TOF = -1  # TeraRanger only: no speed reference, descend
+    ALARM_NONE = -2  # nothing: descend
+
+
+class Button(enum.Enum):
+    """Joystick buttons of the base station."""
+
+    TAKEOFF = "takeoff"
+    LAND = "land"
+    GO_AHEAD = "go_ahead"
+    INSPECTION_MODE_ON = "inspection_mode_on"
+    INSPECTION_MODE_OFF = "inspection_mode_off"
+
+
+@dataclass(frozen=True, slots=True)
+class SpeedCommand:
+    """A speed set-point in the heading frame (m/s, rad/s)."""
+
+    vx_m_s: float = 0.0
+    vy_m_s: float = 0.0
+    vz_m_s: float = 0.0
+    yaw_rate_rad_s: float = 0.0
+
+    def is_zero(self, eps: float = 1e-6) -> bool:
+        return (
+            abs(self.vx_m_s) < eps
+            and abs(self.vy_m_s) < eps
+            and abs(self.vz_m_s) < eps
+            and abs(self.yaw_rate_rad_s) < eps
+        )
+
+
+HOVER = SpeedCommand()
+
+
+@dataclass(frozen=True, slots=True)
+class RangeReading:
+    """One range-finder sample; ``range_m`` is None when nothing echoed within range.
+
+    ``stamp_s`` is the onboard receive time; the sensor's latency is a known parameter.
+    """
+
+    stamp_s: float
+    range_m: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class BottomFlow:
+    """Bottom-looking PX4Flow metric flow: speed over the floor (m/s), quality 0..255."""
+
+    stamp_s: float
+    vx_m_s: float
+    vy_m_s: float
+    quality: int
+
+
+@dataclass(frozen=True, slots=True)
+class FrontFlow:
+    """Forward-looking PX4Flow metric flow: speed along the front wall (m/s), quality 0..255."""
+
+    stamp_s: float
+    vy_m_s: float
+    vz_m_s: float
+    quality: int
+
+
+@dataclass(frozen=True, slots=True)
+class ImuReading:
+    """Acceleration from the autopilot's IMU, gravity removed, in the heading frame (m/s^2),
+    averaged since the previous reading."""
+
+    stamp_s: float
+    ax_m_s2: float
+    ay_m_s2: float
+    az_m_s2: float
+
+
+@dataclass(frozen=True, slots=True)
+class Measurements:
+    """The latest reading delivered by each sensor (None: never delivered).
+
+    A reading whose stamp has not changed since the last tick is simply old; staleness is judged
+    by the estimator against ``now``.
+    """
+
+    bottom_flow: BottomFlow | None = None
+    bottom_sonar: RangeReading | None = None
+    bottom_tof: RangeReading | None = None
+    front_flow: FrontFlow | None = None
+    front_sonar: RangeReading | None = None
+    left_sonar: RangeReading | None = None
+    right_sonar: RangeReading | None = None
+    imu: ImuReading | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class StateEstimate:
+    """Output of MAV_state_updater.
+
+    ``height_m`` is the clearance to the surface below (it steps when a box is overflown);
+    ``altitude_m`` is the height above the take-off floor with floor discontinuities removed,
+    the quantity the height controller holds.
+    """
+
+    height_m: float
+    altitude_m: float
+    vx_m_s: float
+    vy_m_s: float
+    vz_m_s: float
+    mode: EstimationMode
+
+
+@dataclass(frozen=True, slots=True)
+class Clearance:
+    """Distance to the closest obstacle per direction (m), corrected to ``now`` for sensor age
+    and latency; None when nothing is within the sensor's range or the sensor is silent."""
+
+    front_m: float | None = None
+    left_m: float | None = None
+    right_m: float | None = None
+    down_m: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorInput:
+    """What arrived from the base station: the stick and the buttons pressed since last tick."""
+
+    stick: SpeedCommand = HOVER
+    buttons: frozenset[Button] = frozenset()
+    link_ok: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSetpoint:
+    """What the low-level attitude controller (autopilot firmware) tracks.
+
+    Roll about X (positive: left side up, accelerates towards -Y), pitch about Y (positive: nose
+    down, accelerates towards +X), yaw rate about Z; collective thrust as a fraction of maximum.
+    """
+
+    roll_rad: float = 0.0
+    pitch_rad: float = 0.0
+    yaw_rate_rad_s: float = 0.0
+    thrust_frac: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class AxisVector:
+    """A behaviour's motion vector: speed per axis, None where the behaviour does not command."""
+
+    vx_m_s: float | None = None
+    vy_m_s: float | None = None
+    vz_m_s: float | None = None
+    yaw_rate_rad_s: float | None = None
+
+    def axes(self) -> tuple[float | None, float | None, float | None, float | None]:
+        return (self.vx_m_s, self.vy_m_s, self.vz_m_s, self.yaw_rate_rad_s)
+
+    def is_empty(self) -> bool:
+        return self.vx_m_s is None and self.vy_m_s is None and self.vz_m_s is None and self.yaw_rate_rad_s is None
+
+    def to_command(self) -> SpeedCommand:
+        """Axes nobody commanded mean hover on that axis."""
+        return SpeedCommand(*(0.0 if a is None else a for a in self.axes()))
+
+    @staticmethod
+    def full(cmd: SpeedCommand) -> "AxisVector":
+        return AxisVector(cmd.vx_m_s, cmd.vy_m_s, cmd.vz_m_s, cmd.yaw_rate_rad_s)
+
+
+@dataclass(frozen=True, slots=True)
+class BehaviorInputs:
+    """Everything a behaviour may look at in one tick."""
+
+    now_s: float
+    estimate: StateEstimate
+    clearance: Clearance
+    stick: SpeedCommand
+    link_ok: bool
+    inspection_mode: bool
+    go_ahead_pressed: bool
+    battery_percent: float
+    flying: bool

@@ -1,0 +1,118 @@
+"""The whole onboard stack in one tick: MAV_state_updater -> MAV_behaviors -> flight state machine
+-> speed/height controllers. Pure: measurements, operator input, battery level and ``now`` come
+in, an attitude set-point goes out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from inspect_pipe.flight_stack.behaviors import MAVBehaviors
+from inspect_pipe.flight_stack.control import FlightController
+from inspect_pipe.flight_stack.estimation import MAVStateUpdater
+from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState
+from inspect_pipe.flight_stack.messages import (
+    HOVER,
+    AttitudeSetpoint,
+    Button,
+    Clearance,
+    Measurements,
+    OperatorInput,
+    SpeedCommand,
+    StateEstimate,
+)
+from inspect_pipe.flight_stack.params import StackParams
+
+__all__ = ["OnboardStack", "TickOutput"]
+
+
+@dataclass(frozen=True, slots=True)
+class TickOutput:
+    setpoint: AttitudeSetpoint
+    estimate: StateEstimate
+    clearance: Clearance
+    user_cmd: SpeedCommand  # what the operator asked for
+    command: SpeedCommand  # the speed set-point sent to the controllers
+    behaviors: tuple[str, ...]
+    fsm: FlightState
+    inspection_mode: bool
+
+
+class OnboardStack:
+    """Call ``tick`` at ``params.control.tick_hz`` with the simulated or real clock."""
+
+    def __init__(self, params: StackParams | None = None) -> None:
+        self.params = (params or StackParams()).validate()
+        p = self.params
+        self.state_updater = MAVStateUpdater(p.estimation)
+        self.behaviors = MAVBehaviors(p.behaviors)
+        self.machine = FlightMachine(p.flight_machine)
+        self.controller = FlightController(p.control)
+        self._last_now: float | None = None
+        self._last_thrust = 0.0
+
+    @property
+    def fsm(self) -> FlightState:
+        return self.machine.state
+
+    def tick(self, now_s: float, measurements: Measurements, operator: OperatorInput, battery_percent: float) -> TickOutput:
+        p = self.params
+        dt = 1.0 / p.control.tick_hz if self._last_now is None else max(now_s - self._last_now, 0.0)
+        self._last_now = now_s
+
+        est, clearance = self.state_updater.update(now_s, measurements)
+        machine = self.machine
+        airborne = machine.state in (FlightState.FLYING, FlightState.DESCENDING)
+        beh = self.behaviors.update(
+            now_s, est, clearance, operator, battery_percent=battery_percent, flying=airborne, dt=dt
+        )
+        buttons = operator.buttons if operator.link_ok else frozenset()
+        before = machine.state
+        state = machine.update(
+            now_s,
+            dt,
+            est,
+            FlightEvents(
+                takeoff_pressed=Button.TAKEOFF in buttons,
+                land_requested=Button.LAND in buttons or beh.land_request,
+                high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
+            ),
+        )
+        fm = p.flight_machine
+        ctrl = self.controller
+        if state is FlightState.FLYING and before is FlightState.TAKING_OFF:
+            ctrl.hold_height(max(fm.hover_height_m, est.altitude_m))
+
+        alarm = est.mode < 0
+        names = beh.behaviors
+        if state is FlightState.LANDED:
+            ctrl.reset()
+            cmd, setpoint = HOVER, AttitudeSetpoint()
+        elif state is FlightState.TAKING_OFF:
+            cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False)
+            names = ()
+        elif state is FlightState.FLYING:
+            cmd = beh.command
+            setpoint = ctrl.update(cmd, est, dt, freeze_integrators=alarm)
+        elif state is FlightState.DESCENDING:
+            # Behaviours still act on X and Y (user movements, collision prevention).
+            cmd = SpeedCommand(beh.command.vx_m_s, beh.command.vy_m_s, -fm.descend_speed_m_s, beh.command.yaw_rate_rad_s)
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm)
+        else:  # LANDING
+            cmd = SpeedCommand(0.0, 0.0, -fm.landing_speed_m_s, 0.0)
+            setpoint = ctrl.update(
+                cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm,
+                thrust_cap_frac=machine.thrust_cap(now_s, p.control.hover_thrust_frac),
+            )
+            names = tuple(n for n in names if n == "low_battery_land")
+        self._last_thrust = setpoint.thrust_frac
+        return TickOutput(
+            setpoint=setpoint,
+            estimate=est,
+            clearance=clearance,
+            user_cmd=operator.stick if operator.link_ok else HOVER,
+            command=cmd,
+            behaviors=names,
+            fsm=state,
+            inspection_mode=self.behaviors.inspection_mode,
+        )

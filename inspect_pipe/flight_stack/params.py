@@ -1,0 +1,124 @@
+"""Parameters of the onboard stack, each declared once with default, bounds and unit.
+
+``StackParams.validate()`` checks every bound; ``describe()`` lists them (used by docs and
+``--help`` texts). Field names carry the unit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields
+
+
+def param(default: float, lo: float, hi: float, unit: str, doc: str = ""):
+    return field(default=default, metadata={"min": lo, "max": hi, "unit": unit, "doc": doc})
+
+
+def _check(obj) -> None:
+    for f in fields(obj):
+        meta = f.metadata
+        if "min" not in meta:
+            continue
+        value = getattr(obj, f.name)
+        if not (meta["min"] <= value <= meta["max"]):
+            raise ValueError(
+                f"{type(obj).__name__}.{f.name}={value} outside [{meta['min']}, {meta['max']}] {meta['unit']}"
+            )
+
+
+@dataclass(frozen=True)
+class EstimationParams:
+    flow_min_quality: int = param(80, 0, 255, "1", "PX4Flow quality below which flow is not used")
+    flow_timeout_s: float = param(0.08, 0.01, 1.0, "s", "flow older than this is N/A")
+    sonar_timeout_s: float = param(0.35, 0.05, 2.0, "s", "sonar older than this is N/A (10 Hz)")
+    tof_timeout_s: float = param(0.1, 0.01, 1.0, "s", "TeraRanger older than this is N/A")
+    sonar_max_range_m: float = param(4.9, 1.0, 7.0, "m", "HRLV-EZ4 usable range")
+    tof_max_range_m: float = param(13.8, 1.0, 14.0, "m", "TeraRanger One usable range")
+    flow_latency_s: float = param(0.02, 0.0, 0.5, "s")
+    sonar_latency_s: float = param(0.05, 0.0, 0.5, "s")
+    tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
+    height_jump_m: float = param(0.25, 0.05, 2.0, "m", "range change not explained by vertical motion")
+    alarm_climb_m_s: float = param(0.25, 0.05, 1.0, "m/s", "the '+val.' of the alarm modes")
+    observer_k1_1_s: float = param(3.0, 0.1, 50.0, "1/s", "range observer position gain")
+    observer_k2_1_s2: float = param(2.5, 0.01, 500.0, "1/s^2", "range observer rate gain")
+
+
+@dataclass(frozen=True)
+class BehaviorParams:
+    attenuation_start_m: float = param(1.5, 0.5, 5.0, "m", "attenuated_go starts slowing here")
+    safe_distance_m: float = param(1.0, 0.4, 4.0, "m", "minimum distance allowed to an obstacle")
+    response_time_s: float = param(0.35, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
+    brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
+    repulsion_gain_1_s: float = param(1.2, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
+    repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s")
+    inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
+    stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
+    floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")
+    floor_clearance_m: float = param(0.6, 0.4, 2.0, "m", "lowest height the user may fly down to")
+    max_height_m: float = param(10.0, 1.0, 14.0, "m", "limit_max_height ceiling")
+    max_height_margin_m: float = param(0.5, 0.1, 2.0, "m", "limit_max_height acts this far below")
+    max_height_gain_1_s: float = param(1.0, 0.1, 5.0, "1/s")
+    reference_range_m: float = param(4.5, 1.0, 5.0, "m", "keep floor or front wall within this")
+    reference_gain_1_s: float = param(0.6, 0.1, 5.0, "1/s")
+    low_battery_percent: float = param(20.0, 0.0, 100.0, "%")
+    max_speed_m_s: float = param(1.0, 0.1, 3.0, "m/s", "largest horizontal speed command")
+    max_vertical_speed_m_s: float = param(0.6, 0.1, 2.0, "m/s")
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    tick_hz: float = param(50.0, 10.0, 500.0, "Hz", "rate of estimation, behaviours and control")
+    speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
+    speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2")
+    speed_kd: float = param(0.0, 0.0, 5.0, "1")
+    vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s")
+    vz_ki_1_s2: float = param(1.5, 0.0, 20.0, "1/s^2")
+    height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")
+    height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3")
+    height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s")
+    integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2")
+    max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
+    max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")
+    hover_thrust_frac: float = param(0.4545, 0.1, 0.9, "1", "nominal thrust to hover / max thrust")
+
+
+@dataclass(frozen=True)
+class FlightMachineParams:
+    takeoff_climb_m_s: float = param(0.5, 0.1, 2.0, "m/s")
+    takeoff_end_height_m: float = param(0.5, 0.2, 2.0, "m", "taking_off -> flying above this")
+    takeoff_high_thrust_s: float = param(4.0, 0.5, 20.0, "s", "or after this long at high thrust")
+    hover_height_m: float = param(1.0, 0.5, 5.0, "m", "height held after take-off")
+    descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s")
+    descend_end_height_m: float = param(0.5, 0.2, 2.0, "m", "descending -> landing below this")
+    landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s")
+    landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
+
+
+@dataclass(frozen=True)
+class StackParams:
+    estimation: EstimationParams = field(default_factory=EstimationParams)
+    behaviors: BehaviorParams = field(default_factory=BehaviorParams)
+    control: ControlParams = field(default_factory=ControlParams)
+    flight_machine: FlightMachineParams = field(default_factory=FlightMachineParams)
+
+    def validate(self) -> "StackParams":
+        for group in (self.estimation, self.behaviors, self.control, self.flight_machine):
+            _check(group)
+        return self
+
+    def replace(self, **groups) -> "StackParams":
+        return dataclasses.replace(self, **groups).validate()
+
+
+def describe(params: StackParams | None = None) -> list[tuple[str, float, float, float, str, str]]:
+    """Rows (name, value, min, max, unit, doc) of every parameter."""
+    params = params or StackParams()
+    rows = []
+    for group_field in fields(params):
+        group = getattr(params, group_field.name)
+        for f in fields(group):
+            m = f.metadata
+            rows.append(
+                (f"{group_field.name}.{f.name}", getattr(group, f.name), m["min"], m["max"], m["unit"], m["doc"])
+            )
+    return rows
