@@ -9,6 +9,7 @@ import typer
 
 import inspect_pipe
 from cli import detect as _detect
+from cli import fly as _fly
 
 app = typer.Typer(
     name="inspect-pipe",
@@ -26,6 +27,7 @@ def version() -> None:
 
 
 app.add_typer(_detect.app, name="detect")
+app.command("fly", help=_fly.HELP)(_fly.fly)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -22,6 +22,9 @@ from inspect_pipe.flight_stack.params import StackParams
 __all__ = ["ExitStatus", "FlightResult", "SimParts", "TickRecord", "run_scenario"]
 
 
+FLOOR_CRASH_M_S = 1.0  # touching the floor faster than this is a collision, not a landing
+
+
 class ExitStatus(str, enum.Enum):
     COMPLETED = "completed"  # the scenario's duration elapsed without a collision
     COLLISION = "collision"
@@ -105,6 +108,7 @@ def run_scenario(
     status, collided_at = ExitStatus.COMPLETED, None
     wall0 = time.perf_counter()
     k = 0
+    prev_vz = 0.0
     for k in range(n_ticks + 1):
         now = k * tick_dt
         link.advance(now)
@@ -117,9 +121,12 @@ def run_scenario(
 
         x, y, z = sim.position
         dist = geometry.clearances(x, y, z)
-        collided = geometry.wall_distance(x, y, z) < VEHICLE_RADIUS_M or (
-            out.fsm is FlightState.FLYING and z < VEHICLE_RADIUS_M
-        )
+        # A wall or box inside the 0.35 m sphere is a collision; the floor only when hit hard
+        # (a touchdown faster than a landing gear takes), since landing is touching the floor.
+        vz_true = sim.velocity[2]
+        on_floor = z - parts.vehicle.leg_height_m < 0.02
+        collided = geometry.wall_distance(x, y, z) < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
+        prev_vz = vz_true
         if on_tick is not None:
             on_tick(
                 TickRecord(
@@ -134,9 +141,7 @@ def run_scenario(
         if k == n_ticks:
             break
         dropped = frozenset(f.sensor for f in dropouts if f.active(now))  # type: ignore[misc]
-        for _ in range(substeps):
-            sim.step(1)
-            sensors.sample(sim, dropped)  # type: ignore[arg-type]
+        sim.step(substeps, lambda s: sensors.sample(s, dropped))  # type: ignore[arg-type]
         battery.drain(tick_dt, sim.thrust_n / (hover * parts.vehicle.max_thrust_n))
     return FlightResult(
         status=status,

@@ -96,6 +96,7 @@ class SensorSuite:
             "bottom_tof": _Channel(tof.rate_hz, tof.latency_s, r.random()),
         }
         self._imu_prev = None
+        self._next_due = 0.0
         self._imu_bias = tuple(r.gauss(0, self.s.imu.bias_m_s2) for _ in range(3))
         self.bias = {k: (r.gauss(0, fl.bias_m_s), r.gauss(0, fl.bias_m_s)) for k in ("bottom_flow", "front_flow")}
         # Last sonar range each PX4Flow scales its flow with.
@@ -137,6 +138,8 @@ class SensorSuite:
 
     def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName]) -> None:
         t = sim.t
+        if t + 1e-9 < self._next_due:
+            return
         pos = None
         for name, ch in self.ch.items():
             if t + 1e-9 < ch.next_t:
@@ -150,6 +153,7 @@ class SensorSuite:
                 pos = sim.position
             stamp = t + ch.latency  # delivery time: what the onboard clock stamps
             ch.queue.append((stamp, self._measure(name, sim, pos, stamp)))
+        self._next_due = min(ch.next_t for ch in self.ch.values())
 
     def _measure(self, name: str, sim: QuadrotorSim, pos, stamp: float):
         s = self.s

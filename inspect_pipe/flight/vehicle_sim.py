@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -167,7 +168,9 @@ class QuadrotorSim:
     def set_setpoint(self, sp: AttitudeSetpoint) -> None:
         self.setpoint = sp
 
-    def step(self, n: int = 1) -> None:
+    def step(self, n: int = 1, after_step: Callable[["QuadrotorSim"], None] | None = None) -> None:
+        """``n`` physics steps holding the current set-point; ``after_step(self)`` after each
+        (the sensors sample there). The air disturbance changes once per call."""
         m, d = self.model, self.data
         fw, veh = self.firmware, self.vehicle
         dt = self.dt
@@ -177,9 +180,11 @@ class QuadrotorSim:
         alpha = dt / (veh.motor_time_constant_s + dt)
         tmax = veh.max_thrust_n
         c1, c2 = veh.drag_linear_n_s_m, veh.drag_quadratic_n_s2_m2
-        dist_a = dt / veh.disturbance_time_constant_s
+        dist_a = n * dt / veh.disturbance_time_constant_s
         dist_s = veh.disturbance_force_n * math.sqrt(2 * dist_a)
-        gauss = self.rng.gauss
+        dist = self._dist
+        for k in range(3):
+            dist[k] += -dist_a * dist[k] + dist_s * self.rng.gauss(0.0, 1.0)
         qpos, qvel, xmat = d.qpos, d.qvel, d.xmat
         xfrc = self._xfrc
         sp = self.setpoint
@@ -188,16 +193,12 @@ class QuadrotorSim:
         thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax
         armed = thrust_sp > 0.0 or self.thrust_n > 0.01
         for _ in range(n):
-            w, x, y, z = qpos[3], qpos[4], qpos[5], qpos[6]
+            w, x, y, z = qpos[3:7].tolist()
             roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
             pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
             yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-            p, q, r = qvel[3], qvel[4], qvel[5]
+            vx, vy, vz, p, q, r = qvel.tolist()
             self.thrust_n += alpha * (thrust_sp - self.thrust_n)
-            dist = self._dist
-            for k in range(3):
-                dist[k] += -dist_a * dist[k] + dist_s * gauss(0.0, 1.0)
-            vx, vy, vz = qvel[0], qvel[1], qvel[2]
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             cd = c1 + c2 * speed
             if armed:
@@ -211,7 +212,7 @@ class QuadrotorSim:
             else:
                 self.yaw_sp = yaw
                 tx = ty = tz = fx = fy = fz = 0.0
-            R = xmat[self.body]
+            R = xmat[self.body].tolist()
             T = self.thrust_n
             xfrc[0] = R[2] * T + fx - cd * vx
             xfrc[1] = R[5] * T + fy - cd * vy
@@ -220,7 +221,9 @@ class QuadrotorSim:
             xfrc[4] = R[3] * tx + R[4] * ty + R[5] * tz
             xfrc[5] = R[6] * tx + R[7] * ty + R[8] * tz
             mujoco.mj_step(m, d)
-        self.t += n * dt
+            self.t += dt
+            if after_step is not None:
+                after_step(self)
 
     # ------------------------------------------------------------------ sensing
     def ray(self, origin: tuple[float, float, float], direction_body: tuple[float, float, float]) -> float | None:

@@ -27,6 +27,7 @@ class FlightEvents:
     takeoff_pressed: bool = False
     land_requested: bool = False  # land button or low_battery_land
     high_thrust: bool = False  # collective thrust at or above hover
+    impact: bool = False  # IMU jolt upwards with thrust at most hover: the floor stopped us
 
 
 class FlightMachine:
@@ -36,20 +37,17 @@ class FlightMachine:
     taking_off -> flying: height above ``takeoff_end_height_m`` or ``takeoff_high_thrust_s`` at
     high thrust. taking_off/flying -> descending: land button or low battery.
     descending -> landing: height below ``descend_end_height_m``.
-    flying -> landing: alarm mode -1 below that height, or alarm mode -2 for
-    ``alarm_none_land_s`` (no height reference at all: the descent must end on the floor).
+    flying -> landing: alarm mode -1 below that height, or in any alarm mode the jolt of
+    touching the floor (mode -2 has no height reference: the descent ends on the floor).
     landing -> landed: touchdown (height at the sonar's minimum, no vertical speed) and the thrust
     ramp-down finished, or the ramp's time-out.
     """
-
-    alarm_none_land_s = 4.0
 
     def __init__(self, params: FlightMachineParams | None = None) -> None:
         self.p = params or FlightMachineParams()
         self.state = FlightState.LANDED
         self.entered_s = 0.0
         self.high_thrust_s = 0.0
-        self.alarm_none_since: float | None = None
         self.touchdown_s: float | None = None
 
     def _go(self, state: FlightState, now: float) -> None:
@@ -72,22 +70,17 @@ class FlightMachine:
                 self._go(FlightState.DESCENDING, now)
             elif est.mode >= 0 and est.height_m >= p.takeoff_end_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
                 self._go(FlightState.FLYING, now)
-        elif s is FlightState.FLYING:
-            if est.mode == EstimationMode.ALARM_NONE:
-                self.alarm_none_since = now if self.alarm_none_since is None else self.alarm_none_since
-            else:
-                self.alarm_none_since = None
-            if ev.land_requested:
+        elif s is FlightState.FLYING or s is FlightState.DESCENDING:
+            alarm = est.mode < 0
+            if alarm and ev.impact:
+                self._go(FlightState.LANDING, now)
+                self.touchdown_s = now
+            elif s is FlightState.FLYING and ev.land_requested:
                 self._go(FlightState.DESCENDING, now)
-            elif est.mode == EstimationMode.ALARM_TOF and est.height_m < p.descend_end_height_m:
-                self._go(FlightState.LANDING, now)
-            elif self.alarm_none_since is not None and now - self.alarm_none_since >= self.alarm_none_land_s:
-                self._go(FlightState.LANDING, now)
-        elif s is FlightState.DESCENDING:
-            if est.height_m < p.descend_end_height_m or (est.mode < 0 and self.time_in_state(now) > 10.0):
+            elif (s is FlightState.DESCENDING or est.mode == EstimationMode.ALARM_TOF) and est.height_m < p.descend_end_height_m:
                 self._go(FlightState.LANDING, now)
         elif s is FlightState.LANDING:
-            on_ground = est.height_m <= 0.35 and abs(est.vz_m_s) < 0.15
+            on_ground = (est.height_m <= 0.35 and abs(est.vz_m_s) < 0.15) or ev.impact
             if self.touchdown_s is None and (on_ground or self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0):
                 self.touchdown_s = now
             if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:

@@ -66,6 +66,7 @@ class OnboardStack:
             now_s, est, clearance, operator, battery_percent=battery_percent, flying=airborne, dt=dt
         )
         buttons = operator.buttons if operator.link_ok else frozenset()
+        fm = p.flight_machine
         before = machine.state
         state = machine.update(
             now_s,
@@ -75,31 +76,38 @@ class OnboardStack:
                 takeoff_pressed=Button.TAKEOFF in buttons,
                 land_requested=Button.LAND in buttons or beh.land_request,
                 high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
+                impact=measurements.imu is not None
+                and measurements.imu.az_m_s2 > fm.impact_accel_m_s2
+                and self._last_thrust <= 1.1 * p.control.hover_thrust_frac,
             ),
         )
-        fm = p.flight_machine
         ctrl = self.controller
         if state is FlightState.FLYING and before is FlightState.TAKING_OFF:
             ctrl.hold_height(max(fm.hover_height_m, est.altitude_m))
 
+        # Alarm modes: the filled "+val." vertical speed, seen by a speed loop whose integrators
+        # hold the hover trim, is what brings the vehicle down (Table I); no height hold.
         alarm = est.mode < 0
         names = beh.behaviors
         if state is FlightState.LANDED:
             ctrl.reset()
-            cmd, setpoint = HOVER, AttitudeSetpoint()
+            cmd, setpoint, names = HOVER, AttitudeSetpoint(), ()
         elif state is FlightState.TAKING_OFF:
             cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)
             setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False)
             names = ()
         elif state is FlightState.FLYING:
             cmd = beh.command
-            setpoint = ctrl.update(cmd, est, dt, freeze_integrators=alarm)
+            if alarm:
+                cmd = SpeedCommand(cmd.vx_m_s, cmd.vy_m_s, 0.0, cmd.yaw_rate_rad_s)
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=not alarm, freeze_integrators=alarm)
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
-            cmd = SpeedCommand(beh.command.vx_m_s, beh.command.vy_m_s, -fm.descend_speed_m_s, beh.command.yaw_rate_rad_s)
+            vz = 0.0 if alarm else -fm.descend_speed_m_s
+            cmd = SpeedCommand(beh.command.vx_m_s, beh.command.vy_m_s, vz, beh.command.yaw_rate_rad_s)
             setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm)
         else:  # LANDING
-            cmd = SpeedCommand(0.0, 0.0, -fm.landing_speed_m_s, 0.0)
+            cmd = SpeedCommand(0.0, 0.0, 0.0 if alarm else -fm.landing_speed_m_s, 0.0)
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm,
                 thrust_cap_frac=machine.thrust_cap(now_s, p.control.hover_thrust_frac),

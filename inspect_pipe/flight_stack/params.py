@@ -38,9 +38,11 @@ class EstimationParams:
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s")
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
     height_jump_m: float = param(0.25, 0.05, 2.0, "m", "range change not explained by vertical motion")
-    alarm_climb_m_s: float = param(0.25, 0.05, 1.0, "m/s", "the '+val.' of the alarm modes")
-    observer_k1_1_s: float = param(3.0, 0.1, 50.0, "1/s", "range observer position gain")
-    observer_k2_1_s2: float = param(2.5, 0.01, 500.0, "1/s^2", "range observer rate gain")
+    alarm_climb_m_s: float = param(0.1, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes")
+    # Range observers: triple pole at -1.5 rad/s (k1 = 3L, k2 = 3L^2, k3 = L^3).
+    observer_k1_1_s: float = param(4.5, 0.1, 50.0, "1/s", "range observer position gain")
+    observer_k2_1_s2: float = param(6.75, 0.01, 500.0, "1/s^2", "range observer rate gain")
+    observer_k3_1_s3: float = param(3.375, 0.0, 500.0, "1/s^3", "range observer accelerometer-bias gain")
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,7 @@ class FlightMachineParams:
     descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s")
     descend_end_height_m: float = param(0.5, 0.2, 2.0, "m", "descending -> landing below this")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s")
+    impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
 
 
