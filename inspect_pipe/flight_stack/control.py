@@ -82,11 +82,15 @@ class FlightController:
         if mode is VerticalMode.HEIGHT:
             if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:
                 if self.height_ref_m is None:
-                    self.height_ref_m = est.altitude_m
+                    # Hold where the vehicle will come to rest, not where the stick was centred:
+                    # no bounce back after a climb or a descent.
+                    self.height_ref_m = est.altitude_m + est.vz_m_s * p.height_latch_lead_s
                 # Bumpless hand-over: the speed loop's trim becomes the height loop's.
                 self.pid_height.reset(self.pid_vz.integral)
             err = self.height_ref_m - est.altitude_m
-            az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators)
+            # Integrate only near the reference: a climb to it would otherwise wind the trim up.
+            near = abs(err) < p.height_integral_band_m
+            az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators or not near)
         else:
             if self.vertical_mode is VerticalMode.HEIGHT:
                 self.pid_vz.reset(self.pid_height.integral)

@@ -94,7 +94,8 @@ class OnboardStack:
             cmd, setpoint, names = HOVER, AttitudeSetpoint(), ()
         elif state is FlightState.TAKING_OFF:
             cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)
-            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False)
+            # Integrators frozen: on the ground the speed error would only wind them up.
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=True)
             names = ()
         elif state is FlightState.FLYING:
             cmd = beh.command

@@ -78,6 +78,8 @@ class ControlParams:
     height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")
     height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3")
     height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s")
+    height_integral_band_m: float = param(0.1, 0.0, 5.0, "m", "height PID integrates within this error")
+    height_latch_lead_s: float = param(0.3, 0.0, 2.0, "s", "height held = altitude + vz * lead when vz command ends")
     integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2")
     max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
     max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")
