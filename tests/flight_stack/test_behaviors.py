@@ -1,0 +1,132 @@
+"""Behaviours one by one, with synthetic inputs."""
+
+from __future__ import annotations
+
+import pytest
+
+from inspect_pipe.flight_stack.behaviors import (
+    AttenuatedGo,
+    AttenuatedInspect,
+    EnsureReferenceSurfaceDetection,
+    GoAhead,
+    LimitMaxHeight,
+    LowBatteryLand,
+    MAVBehaviors,
+    PreventCollision,
+    WaitingForConnectivity,
+)
+from inspect_pipe.flight_stack.behaviors._obstacle_math import attenuation, stop_point_m
+from inspect_pipe.flight_stack.messages import (
+    BehaviorInputs,
+    Button,
+    Clearance,
+    EstimationMode,
+    OperatorInput,
+    SpeedCommand,
+    StateEstimate,
+)
+from inspect_pipe.flight_stack.params import BehaviorParams
+
+P = BehaviorParams()
+
+
+def _in(stick=SpeedCommand(), *, front=None, left=None, right=None, down=1.5, vx=0.0, vy=0.0, vz=0.0,
+        alt=1.5, link=True, inspection=False, go=False, battery=100.0, mode=EstimationMode.BOTTOM_FRONT):
+    est = StateEstimate(down, alt, vx, vy, vz, mode)
+    return BehaviorInputs(0.0, est, Clearance(front, left, right, down), stick, link, inspection, go, battery, True)
+
+
+@pytest.mark.parametrize("d, factor", [(3.0, 1.0), (1.5, 1.0), (1.25, 0.5), (1.0, 0.0), (0.7, 0.0), (None, 1.0)])
+def test_attenuation_is_linear_between_1_5_and_1_m(d, factor):
+    assert attenuation(d, start_m=1.5, stop_m=1.0) == pytest.approx(factor)
+
+
+def test_stop_point_accounts_for_response_time_and_braking():
+    assert stop_point_m(2.0, 1.0, response_time_s=0.35, decel_m_s2=1.2) == pytest.approx(2.0 - 0.35 - 1 / 2.4)
+    assert stop_point_m(2.0, -0.5, response_time_s=0.35, decel_m_s2=1.2) == 2.0
+
+
+def test_attenuated_go_attenuates_only_towards_the_obstacle():
+    v = AttenuatedGo(P).update(_in(SpeedCommand(0.4, 0.3, 0.0, 0.2), front=1.25, left=3.0), 0.02)
+    assert v.vx_m_s == pytest.approx(0.2) and v.vy_m_s == pytest.approx(0.3) and v.yaw_rate_rad_s == 0.2
+    back = AttenuatedGo(P).update(_in(SpeedCommand(-0.4, 0, 0, 0), front=1.1), 0.02)
+    assert back.vx_m_s == pytest.approx(-0.4)
+
+
+def test_attenuated_go_stops_descents_near_the_floor():
+    v = AttenuatedGo(P).update(_in(SpeedCommand(0, 0, -0.5, 0), down=P.floor_clearance_m), 0.02)
+    assert v.vz_m_s == 0.0
+
+
+def test_attenuated_inspect_fixes_speed_and_ignores_longitudinal_and_yaw():
+    v = AttenuatedInspect(P).update(_in(SpeedCommand(0.8, 0.07, -0.9, 0.5)), 0.02)
+    assert (v.vx_m_s, v.vy_m_s, v.vz_m_s, v.yaw_rate_rad_s) == (0.0, 0.2, -0.2, 0.0)
+    still = AttenuatedInspect(P).update(_in(SpeedCommand(0.0, 0.03, 0.0, 0.0)), 0.02)
+    assert still.vy_m_s == 0.0  # inside the dead band: hover
+
+
+def test_waiting_for_connectivity_hovers_only_without_link():
+    assert WaitingForConnectivity().update(_in(link=True), 0.02) is None
+    v = WaitingForConnectivity().update(_in(SpeedCommand(0.4), link=False), 0.02)
+    assert v.to_command().is_zero()
+
+
+def test_prevent_collision_repulsion_grows_with_proximity_and_is_capped():
+    pc = PreventCollision(P)
+    v09 = pc.update(_in(front=0.9), 0.02).vx_m_s
+    v06 = pc.update(_in(front=0.6), 0.02).vx_m_s
+    v01 = pc.update(_in(front=0.1), 0.02).vx_m_s
+    assert v09 < 0 and v06 < v09 and v01 == -P.repulsion_max_m_s
+    assert pc.update(_in(front=3.0, vx=0.4), 0.02) is None
+    side = pc.update(_in(left=0.8, right=0.9), 0.02)
+    assert side.vy_m_s == pytest.approx(-P.repulsion_gain_1_s * 0.2 + P.repulsion_gain_1_s * 0.1)
+
+
+def test_prevent_collision_brakes_when_the_stop_would_breach_the_safe_distance():
+    pc = PreventCollision(P)
+    # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.35 - 0.42 < 1 m, so brake now
+    assert pc.update(_in(front=1.4, vx=1.0), 0.02).vx_m_s == 0.0
+    assert pc.update(_in(front=1.4, vx=0.1), 0.02) is None
+
+
+def test_go_ahead_latches_releases_on_new_stick_and_on_obstacle():
+    g = GoAhead(P)
+    assert g.update(_in(SpeedCommand(0.4), front=4.0, go=True), 0.02).vx_m_s == 0.4
+    assert g.update(_in(SpeedCommand(), front=4.0, vx=0.4), 0.02).vx_m_s == 0.4  # stick released
+    assert g.update(_in(SpeedCommand(0.0, 0.3), front=4.0, vx=0.4), 0.02) is None  # new desired speed
+    g.update(_in(SpeedCommand(0.4), front=4.0, go=True), 0.02)
+    assert g.update(_in(SpeedCommand(), front=1.2, vx=0.4), 0.02) is None  # wall ahead
+
+
+def test_limit_max_height_attracts_down_only_near_the_ceiling():
+    lm = LimitMaxHeight(P)
+    assert lm.update(_in(alt=5.0), 0.02) is None
+    v = lm.update(_in(alt=P.max_height_m - 0.2), 0.02)
+    assert v.vz_m_s < 0 and v.vx_m_s is None
+
+
+def test_ensure_reference_surface_detection_pulls_back_into_range():
+    er = EnsureReferenceSurfaceDetection(P)
+    assert er.update(_in(down=3.0), 0.02) is None
+    assert er.update(_in(down=5.5, alt=5.5), 0.02).vz_m_s < 0  # no wall in range: go down
+    assert er.update(_in(down=6.0, alt=6.0, front=2.0), 0.02) is None  # the wall is a reference
+    assert er.update(_in(down=6.0, alt=6.0, front=4.4), 0.02).vx_m_s > 0  # keep the wall in range
+
+
+def test_low_battery_land_latches():
+    lb = LowBatteryLand(P)
+    assert lb.viable(_in(battery=50))
+    assert not lb.viable(_in(battery=19.9))
+    assert not lb.viable(_in(battery=50))
+
+
+def test_mav_behaviors_toggles_inspection_mode_and_reports_contributors():
+    node = MAVBehaviors(P)
+    est = StateEstimate(1.5, 1.5, 0.0, 0.0, 0.0, EstimationMode.BOTTOM_FRONT)
+    op = OperatorInput(SpeedCommand(0.5, 0.5, 0.0, 0.3), frozenset({Button.INSPECTION_MODE_ON}))
+    out = node.update(0.0, est, Clearance(front_m=0.9), op, battery_percent=90, flying=True, dt=0.02)
+    assert node.inspection_mode
+    assert out.command.vx_m_s < 0  # repulsion only: the longitudinal stick is ignored
+    assert out.command.vy_m_s == pytest.approx(0.2) and out.command.yaw_rate_rad_s == 0.0
+    assert out.behaviors == ("prevent_collision", "attenuated_inspect")
+    assert not out.land_request

@@ -1,0 +1,84 @@
+"""Speed/height controllers and the flight state machine, stepped by hand."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from inspect_pipe.flight_stack.control import PID, FlightController, VerticalMode
+from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState
+from inspect_pipe.flight_stack.messages import EstimationMode, SpeedCommand, StateEstimate
+from inspect_pipe.flight_stack.params import ControlParams
+
+
+def _est(alt=1.0, vx=0.0, vy=0.0, vz=0.0, mode=EstimationMode.BOTTOM):
+    return StateEstimate(alt, alt, vx, vy, vz, mode)
+
+
+def test_pid_integral_is_clamped_and_can_be_frozen():
+    pid = PID(1.0, 2.0, integral_limit=0.5)
+    for _ in range(100):
+        pid.update(1.0, 0.1)
+    assert pid.integral == 0.5
+    pid.update(-1.0, 0.1, freeze=True)
+    assert pid.integral == 0.5
+
+
+def test_forward_speed_command_pitches_nose_down_and_left_rolls_negative():
+    c = FlightController()
+    sp = c.update(SpeedCommand(0.5, 0.5, 0.0, 0.1), _est(), 0.02)
+    assert sp.pitch_rad > 0 and sp.roll_rad < 0 and sp.yaw_rate_rad_s == 0.1
+    assert max(abs(sp.pitch_rad), abs(sp.roll_rad)) <= ControlParams().max_tilt_rad
+
+
+def test_hover_thrust_at_rest_and_tilt_compensation():
+    p = ControlParams()
+    level = FlightController().update(SpeedCommand(), _est(), 0.02)
+    assert level.thrust_frac == pytest.approx(p.hover_thrust_frac, rel=1e-6)
+    tilted = FlightController().update(SpeedCommand(1.0), _est(), 0.02)
+    assert tilted.thrust_frac == pytest.approx(p.hover_thrust_frac / math.cos(tilted.pitch_rad), rel=1e-6)
+
+
+def test_height_pid_replaces_vertical_speed_pid_when_vz_command_is_zero():
+    c = FlightController()
+    c.update(SpeedCommand(0, 0, 0.3, 0), _est(alt=1.0, vz=0.3), 0.02)
+    assert c.vertical_mode is VerticalMode.SPEED
+    c.update(SpeedCommand(), _est(alt=1.2, vz=0.2), 0.02)
+    assert c.vertical_mode is VerticalMode.HEIGHT
+    assert c.height_ref_m == pytest.approx(1.2 + 0.2 * ControlParams().height_latch_lead_s)
+    low = c.update(SpeedCommand(), _est(alt=1.0, vz=0.0), 0.02)
+    assert low.thrust_frac > ControlParams().hover_thrust_frac  # below the reference: climb
+
+
+def _run(machine, t, est, **ev):
+    return machine.update(t, 0.02, est, FlightEvents(**ev))
+
+
+def test_flight_machine_full_cycle():
+    m = FlightMachine()
+    assert _run(m, 0.0, _est(0.3)) is FlightState.LANDED
+    assert _run(m, 0.1, _est(0.3), takeoff_pressed=True) is FlightState.TAKING_OFF
+    assert _run(m, 0.5, _est(0.4)) is FlightState.TAKING_OFF
+    assert _run(m, 1.0, _est(0.55)) is FlightState.FLYING  # above 0.5 m
+    assert _run(m, 5.0, _est(2.0), land_requested=True) is FlightState.DESCENDING
+    assert _run(m, 8.0, _est(0.45, vz=-0.4)) is FlightState.LANDING  # about 0.5 m
+    assert _run(m, 9.0, _est(0.3, vz=0.0)) is FlightState.LANDING  # touchdown: ramp starts
+    assert m.thrust_cap(9.0 + 0.75, 0.45) == pytest.approx(0.225)
+    assert _run(m, 10.6, _est(0.3)) is FlightState.LANDED
+
+
+def test_taking_off_ends_after_time_at_high_thrust_without_height():
+    m = FlightMachine()
+    _run(m, 0.0, _est(0.3), takeoff_pressed=True)
+    t = 0.0
+    while m.state is FlightState.TAKING_OFF and t < 10:
+        t += 0.02
+        _run(m, t, _est(0.3), high_thrust=True)
+    assert m.state is FlightState.FLYING and t == pytest.approx(4.0, abs=0.05)
+
+
+def test_alarm_tof_below_half_a_metre_goes_to_landing():
+    m = FlightMachine()
+    m.state = FlightState.FLYING
+    assert _run(m, 1.0, _est(0.45, mode=EstimationMode.ALARM_TOF)) is FlightState.LANDING

@@ -1,0 +1,105 @@
+"""MAV_state_updater: Table I modes, flow preferred over derivatives, height estimator."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from inspect_pipe.flight_stack.estimation import HeightEstimator, MAVStateUpdater, SensorStatus, select_mode
+from inspect_pipe.flight_stack.messages import (
+    BottomFlow,
+    EstimationMode,
+    FrontFlow,
+    ImuReading,
+    Measurements,
+    RangeReading,
+)
+
+
+@pytest.mark.parametrize(
+    "bottom_px, bottom_tof, front_px, mode",
+    [
+        (True, True, False, 0),
+        (True, True, True, 1),
+        (False, True, True, 2),
+        (False, False, True, 3),
+        (False, True, False, -1),
+        (False, False, False, -2),
+    ],
+)
+def test_table1_mode_from_sensor_set(bottom_px, bottom_tof, front_px, mode):
+    assert select_mode(SensorStatus(bottom_px, bottom_tof, front_px)) == mode
+
+
+def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, vx=0.3, vy=-0.1, vz=0.05):
+    return Measurements(
+        bottom_flow=BottomFlow(t, vx, vy, 200) if bottom else None,
+        bottom_sonar=RangeReading(t, height) if bottom else None,
+        bottom_tof=RangeReading(t, height) if tof else None,
+        front_flow=FrontFlow(t, vy + 0.01, vz, 200) if front else None,
+        front_sonar=RangeReading(t, front_range) if front else None,
+        imu=ImuReading(t, 0.0, 0.0, 0.0),
+    )
+
+
+def test_mode1_uses_bottom_flow_horizontally_and_front_flow_vertically():
+    est, clearance = MAVStateUpdater().update(1.0, _meas(1.0))
+    assert est.mode == EstimationMode.BOTTOM_FRONT
+    assert (est.vx_m_s, est.vy_m_s, est.vz_m_s) == (0.3, -0.1, 0.05)
+    assert clearance.front_m is not None
+
+
+def test_stale_sensor_is_not_available():
+    upd = MAVStateUpdater()
+    upd.update(1.0, _meas(1.0))
+    est, _ = upd.update(1.5, _meas(1.0))  # nothing new for 0.5 s: every sensor timed out
+    assert est.mode == EstimationMode.ALARM_NONE
+
+
+def test_mode2_longitudinal_speed_is_the_front_range_derivative():
+    # GIVEN the vehicle closing on the front wall at 0.3 m/s with the bottom PX4Flow off
+    upd = MAVStateUpdater()
+    est = None
+    for k in range(60):
+        t = k * 0.1
+        est, _ = upd.update(t, _meas(t, bottom=False, front_range=4.0 - 0.3 * t))
+    # THEN vx comes from the range derivative, vy and vz from the front flow
+    assert est.mode == EstimationMode.TOF_FRONT
+    assert est.vx_m_s == pytest.approx(0.3, abs=0.02)
+    assert est.vy_m_s == pytest.approx(-0.09)
+
+
+@pytest.mark.parametrize("bottom_tof", [True, False])
+def test_alarm_modes_fill_a_climb_and_zero_horizontal_speed(bottom_tof):
+    est, _ = MAVStateUpdater().update(1.0, _meas(1.0, bottom=False, front=False, tof=bottom_tof))
+    assert est.mode == (EstimationMode.ALARM_TOF if bottom_tof else EstimationMode.ALARM_NONE)
+    assert est.vx_m_s == est.vy_m_s == 0.0
+    assert est.vz_m_s > 0.0  # the vertical controller answers with a descent
+
+
+def test_height_estimator_tells_a_floor_step_from_vertical_motion():
+    # GIVEN 10 Hz sonar samples at a constant 1.5 m altitude, over a 1 m box from t=2 s to t=4 s
+    rng = random.Random(1)
+    h = HeightEstimator(jump_m=0.25, k1=4.5, k2=6.75, k3=3.4)
+    for k in range(60):
+        t = k * 0.1
+        floor = 1.0 if 2.0 <= t < 4.0 else 0.0
+        h.propagate(t, 0.0)
+        h.update(1.5 - floor + rng.gauss(0, 0.01), t)
+        # THEN the altitude stays put while the height follows the floor
+        assert h.altitude_m == pytest.approx(1.5, abs=0.05)
+        assert h.height_m == pytest.approx(1.5 - floor, abs=0.05)
+
+
+def test_height_estimator_follows_a_real_climb():
+    # GIVEN a climb at 0.5 m/s seen by the sonar only (no accelerometer help)
+    h = HeightEstimator(jump_m=0.25, k1=4.5, k2=6.75, k3=3.4)
+    for k in range(50):
+        t = k * 0.1
+        h.propagate(t, 0.0)
+        h.update(1.0 + 0.5 * t, t)
+    # THEN it is motion, not floor steps
+    assert h.floor_offset_m == pytest.approx(0.0, abs=1e-9)
+    assert h.altitude_m == pytest.approx(1.0 + 0.5 * 4.9, abs=0.1)
+    assert h.rate_m_s == pytest.approx(0.5, abs=0.05)
