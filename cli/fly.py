@@ -11,6 +11,7 @@ import typer
 from cli._common import one_line_errors
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight import ExitStatus, FlightLogWriter, load_scenario, run_scenario
+from inspect_pipe.flight_stack import StackParams
 
 HELP = (
     "Fly a scenario (YAML, inspect_pipe.scenario/1) in the simulated cargo hold and write the "
@@ -32,7 +33,7 @@ def fly(
     if log.exists() and log.is_dir():
         raise InputError(str(log), "is a directory", "give a file path for the flight log")
     try:
-        writer = FlightLogWriter(log, sc, tick_hz=50.0)
+        writer = FlightLogWriter(log, sc, tick_hz=StackParams().control.tick_hz)
         with writer:
             result = run_scenario(sc, on_tick=writer)
     except OSError as err:
