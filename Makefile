@@ -10,7 +10,7 @@ OUT    ?= out
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test]' --config-settings editable_mode=compat
 	touch $@
 
 install: $(VENV)/.installed
@@ -19,7 +19,7 @@ test: $(VENV)/.installed
 	$(PY) -m pytest
 
 demo: $(VENV)/.installed
-	$(VENV)/bin/inspect-pipe mosaic $(DATA)/mosaic/synth_rust_sweep -o $(OUT)/demo_mosaic
+	$(VENV)/bin/inspect-pipe mosaic $(DATA)/mosaic/synth_rust_sweep/frames -o $(OUT)/demo_mosaic
 
 bench: $(VENV)/.installed
 	$(PY) -m bench --data $(DATA)

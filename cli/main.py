@@ -8,6 +8,7 @@ from __future__ import annotations
 import typer
 
 import inspect_pipe
+from cli import mosaic as _mosaic
 from cli import detect as _detect
 from cli import fly as _fly
 
@@ -18,6 +19,9 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+app.command("mosaic", help=_mosaic.HELP)(_mosaic.mosaic)
 
 
 @app.command("version")

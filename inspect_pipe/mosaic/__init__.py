@@ -1,0 +1,19 @@
+"""Homography mosaicing of a wall sweep (pure cores; file adapters in ``_io``).
+
+``run_mosaic(source, out_dir)`` is the step; ``register`` and ``render`` are the array-level
+cores that tests drive directly.
+"""
+
+from ._align import AlignParams
+from ._blend import BlendParams, render
+from ._features import DETECTORS, detect_features
+from ._homography import MatchParams, match_pair
+from ._io import FolderSource, read_image
+from ._mosaic import FORMAT, MosaicOutput, MosaicParams, run_mosaic
+from ._register import FrameError, FrameSource, Group, Registration, RegisterParams, register
+
+__all__ = [
+    "AlignParams", "BlendParams", "DETECTORS", "FORMAT", "FolderSource", "FrameError", "FrameSource",
+    "Group", "MatchParams", "MosaicOutput", "MosaicParams", "Registration", "RegisterParams",
+    "detect_features", "match_pair", "read_image", "register", "render", "run_mosaic",
+]

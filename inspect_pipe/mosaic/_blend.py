@@ -1,0 +1,197 @@
+"""Seam-aware multi-band blending with exposure compensation (OpenCV ``cv2.detail``).
+
+Two passes over the group's frames, one frame in memory at a time at full resolution:
+1. at seam scale (about ``seam_megapix`` per frame): warp, estimate per-frame exposure
+   gains from the overlaps (least squares, pairs only), find seams by dynamic programming on colour;
+2. at full scale: correct vignetting, warp, apply the gains, cut by the seam mask, feed the
+   multi-band blender.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ._pairs import footprint, layout_pairs
+from ._vignetting import Vignetting
+
+
+@dataclass(frozen=True)
+class BlendParams:
+    seam_megapix: float = 0.05
+    blend_strength: float = 5.0  # blend width as % of sqrt(canvas area), as OpenCV's stitcher
+    exposure: str = "gain"  # gain | none
+    seam: str = "dp"  # dp | voronoi | none
+    max_canvas_megapix: float = 600.0
+
+
+class CanvasTooLarge(ValueError):
+    pass
+
+
+def canvas_layout(H: dict[int, np.ndarray], size_wh: tuple[int, int]) -> tuple[dict[int, np.ndarray], tuple[int, int]]:
+    """Shift homographies so the canvas starts at (0, 0); return them and the canvas size (W, H)."""
+    pts = np.concatenate([footprint(h, size_wh) for h in H.values()])
+    x0, y0 = np.floor(pts.min(axis=0))
+    x1, y1 = np.ceil(pts.max(axis=0))
+    T = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], float)
+    out = {}
+    for f, h in H.items():
+        g = T @ h
+        out[f] = g / g[2, 2]
+    return out, (int(x1 - x0) + 1, int(y1 - y0) + 1)
+
+
+def _roi(Hc: np.ndarray, size_wh: tuple[int, int], canvas_wh: tuple[int, int]) -> tuple[int, int, int, int]:
+    q = footprint(Hc, size_wh)
+    x0, y0 = np.maximum(np.floor(q.min(axis=0)).astype(int), 0)
+    x1 = min(int(np.ceil(q[:, 0].max())) + 1, canvas_wh[0])
+    y1 = min(int(np.ceil(q[:, 1].max())) + 1, canvas_wh[1])
+    return int(x0), int(y0), max(x1 - x0, 1), max(y1 - y0, 1)
+
+
+def _warp(img: np.ndarray, Hc: np.ndarray, roi: tuple[int, int, int, int], interp=cv2.INTER_LINEAR):
+    x0, y0, w, h = roi
+    T = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], float)
+    return cv2.warpPerspective(img, T @ Hc, (w, h), flags=interp, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _as_bgr(img: np.ndarray) -> np.ndarray:
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img
+
+
+def exposure_gains(
+    frames: list[int],
+    corners: list[tuple[int, int]],
+    images: list[np.ndarray],
+    masks: list[np.ndarray],
+    pairs: list[tuple[int, int, float]],
+    *,
+    sigma_n: float = 10.0,
+    sigma_g: float = 0.1,
+) -> np.ndarray:
+    """Per-frame gains that equalise mean intensity in overlaps (the least-squares model of
+    Brown & Lowe / OpenCV's GainCompensator), over overlapping pairs only, so linear in frames."""
+    pos = {f: k for k, f in enumerate(frames)}
+    n = len(frames)
+    A = np.zeros((n, n))
+    b = np.zeros(n)
+    for fi, fj, _ in pairs:
+        i, j = pos[fi], pos[fj]
+        (xi, yi), (xj, yj) = corners[i], corners[j]
+        hi, wi = masks[i].shape
+        hj, wj = masks[j].shape
+        x0, y0 = max(xi, xj), max(yi, yj)
+        x1, y1 = min(xi + wi, xj + wj), min(yi + hi, yj + hj)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        si = (slice(y0 - yi, y1 - yi), slice(x0 - xi, x1 - xi))
+        sj = (slice(y0 - yj, y1 - yj), slice(x0 - xj, x1 - xj))
+        both = (masks[i][si] > 0) & (masks[j][sj] > 0)
+        nij = int(both.sum())
+        if nij < 50:
+            continue
+        Ii = float(images[i][si][both].mean())
+        Ij = float(images[j][sj][both].mean())
+        # d/dg of nij * ((g_i Ii - g_j Ij)^2 / sn^2 + (1 - g_i)^2 / sg^2 + (1 - g_j)^2 / sg^2)
+        A[i, i] += nij * (Ii * Ii / sigma_n**2 + 1 / sigma_g**2)
+        A[j, j] += nij * (Ij * Ij / sigma_n**2 + 1 / sigma_g**2)
+        A[i, j] -= nij * Ii * Ij / sigma_n**2
+        A[j, i] -= nij * Ii * Ij / sigma_n**2
+        b[i] += nij / sigma_g**2
+        b[j] += nij / sigma_g**2
+    empty = np.diag(A) == 0
+    A[empty, empty] = 1.0
+    b[empty] = 1.0
+    return np.linalg.solve(A, b)
+
+
+def render(
+    load: Callable[[int], np.ndarray],
+    H: dict[int, np.ndarray],
+    size_wh: tuple[int, int],
+    *,
+    vignetting: Vignetting | None = None,
+    params: BlendParams = BlendParams(),
+) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Blend the frames of one group. Returns (BGRA uint8 mosaic, frame px -> mosaic px homographies).
+
+    Alpha is 255 where some frame covers the mosaic, 0 elsewhere.
+    """
+    Hc, canvas_wh = canvas_layout(H, size_wh)
+    if canvas_wh[0] * canvas_wh[1] > params.max_canvas_megapix * 1e6:
+        raise CanvasTooLarge(f"canvas {canvas_wh[0]}x{canvas_wh[1]} px exceeds {params.max_canvas_megapix:g} MP")
+    frames = sorted(Hc)
+    w, h = size_wh
+    gain = vignetting.gain(size_wh) if vignetting is not None else None
+    ones = np.full((h, w), 255, np.uint8)
+
+    def prepared(f: int) -> np.ndarray:
+        img = _as_bgr(load(f))
+        if gain is not None:
+            img = np.clip(img.astype(np.float32) * gain[..., None], 0, 255).astype(np.uint8)
+        return img
+
+    # Pass 1: seam scale
+    sc = min(1.0, float(np.sqrt(params.seam_megapix * 1e6 / (w * h))))
+    S = np.diag([sc, sc, 1.0])
+    small_wh = (max(int(round(w * sc)), 1), max(int(round(h * sc)), 1))
+    small_canvas = (int(np.ceil(canvas_wh[0] * sc)) + 1, int(np.ceil(canvas_wh[1] * sc)) + 1)
+    corners_s, imgs_s, masks_s = [], [], []
+    ones_s = np.full(small_wh[::-1], 255, np.uint8)
+    Sin = np.diag([w / small_wh[0], h / small_wh[1], 1.0])
+    for f in frames:
+        Hs = S @ Hc[f] @ Sin
+        roi = _roi(Hs, small_wh, small_canvas)
+        small = cv2.resize(prepared(f), small_wh, interpolation=cv2.INTER_AREA)
+        imgs_s.append(_warp(small, Hs, roi))
+        masks_s.append(_warp(ones_s, Hs, roi, cv2.INTER_NEAREST))
+        corners_s.append((roi[0], roi[1]))
+
+    gains = np.ones(len(frames))
+    if params.exposure == "gain" and len(frames) > 1:
+        gains = exposure_gains(frames, corners_s, imgs_s, masks_s, layout_pairs(
+            {f: S @ Hc[f] @ Sin for f in frames}, small_wh, tried=set(), min_overlap=0.05, per_frame=8))
+
+    if params.seam == "dp" and len(frames) > 1:
+        finder = cv2.detail_DpSeamFinder("COLOR")
+        seams = finder.find([im.astype(np.float32) for im in imgs_s], corners_s, [cv2.UMat(m) for m in masks_s])
+        seams = [s.get() if isinstance(s, cv2.UMat) else s for s in seams]
+    elif params.seam == "voronoi" and len(frames) > 1:
+        finder = cv2.detail.SeamFinder_createDefault(cv2.detail.SeamFinder_VORONOI_SEAM)
+        seams = finder.find([im.astype(np.float32) for im in imgs_s], corners_s, [cv2.UMat(m) for m in masks_s])
+        seams = [s.get() if isinstance(s, cv2.UMat) else s for s in seams]
+    else:
+        seams = masks_s
+    del imgs_s
+
+    # Pass 2: full scale
+    blend_width = np.sqrt(canvas_wh[0] * canvas_wh[1]) * params.blend_strength / 100.0
+    bands = max(int(np.ceil(np.log2(max(blend_width, 2.0)))) - 1, 1)
+    blender = cv2.detail_MultiBandBlender(0, bands)
+    blender.prepare((0, 0, canvas_wh[0], canvas_wh[1]))
+    kernel = np.ones((3, 3), np.uint8)
+    for k, f in enumerate(frames):
+        roi = _roi(Hc[f], size_wh, canvas_wh)
+        warped = _warp(prepared(f), Hc[f], roi)
+        mask = cv2.erode(_warp(ones, Hc[f], roi, cv2.INTER_NEAREST), kernel)
+        if gains[k] != 1.0:
+            warped = cv2.convertScaleAbs(warped, alpha=float(gains[k]))
+        seam = cv2.dilate(seams[k], kernel)
+        seam = cv2.resize(seam, (roi[2], roi[3]), interpolation=cv2.INTER_LINEAR_EXACT)
+        blender.feed(warped.astype(np.int16), cv2.bitwise_and(seam, mask), (roi[0], roi[1]))
+    result, result_mask = blender.blend(None, None)
+    if isinstance(result, cv2.UMat):
+        result, result_mask = result.get(), result_mask.get()
+    out = np.zeros((canvas_wh[1], canvas_wh[0], 4), np.uint8)
+    out[..., :3] = np.clip(result, 0, 255).astype(np.uint8)[: canvas_wh[1], : canvas_wh[0]]
+    out[..., 3] = result_mask[: canvas_wh[1], : canvas_wh[0]]
+    out[out[..., 3] == 0, :3] = 0
+    return out, Hc

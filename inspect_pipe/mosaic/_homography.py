@@ -1,0 +1,170 @@
+"""Robust homography between two frames, with a test that rejects false matches.
+
+Rust texture repeats: a ratio test and RANSAC alone can lock onto a self-similar patch. A pair is
+accepted only if (1) enough inliers survive USAC/MAGSAC, (2) they are a large enough share of the
+ratio-test matches, (3) they spread over the overlap instead of sitting in one corner, (4) the
+homography is a plausible view change of a wall (bounded scale, shear and perspective) and, when
+a prior placement is known, (5) it agrees with that prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ._features import Features
+
+
+@dataclass(frozen=True)
+class MatchParams:
+    ratio: float = 0.8
+    ransac_px: float = 2.0
+    min_inliers: int = 30
+    min_inlier_ratio: float = 0.2
+    min_spread: float = 0.04  # inlier hull area / frame area
+    max_scale_change: float = 1.6
+    max_perspective: float = 2e-3  # |h31|, |h32| in pixels^-1 after normalisation
+    prior_tolerance: float = 0.25  # of the frame diagonal, when a prior is given
+    guided_radius: float = 0.15  # of the frame diagonal: search window around the prior's prediction
+
+
+@dataclass(frozen=True)
+class PairMatch:
+    """Accepted pair: ``H`` maps pixels of frame ``i`` to frame ``j``; ``src``/``dst`` are inliers."""
+
+    i: int
+    j: int
+    H: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    n_matches: int
+
+    def __bool__(self) -> bool:
+        return True
+
+    @property
+    def n_inliers(self) -> int:
+        return len(self.src)
+
+
+@dataclass(frozen=True)
+class PairFailure:
+    """A pair that could not be registered, with the reason (falsy)."""
+
+    i: int
+    j: int
+    reason: str
+    n_matches: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def __bool__(self) -> bool:
+        return False
+
+
+def _knn_ratio(fa: Features, fb: Features, ratio: float, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Ratio-test matches; with ``mask`` (na, nb) only masked-in candidates compete, and a lone
+    candidate is kept (the spatial gate already vouches for it)."""
+    norm = cv2.NORM_HAMMING if fa.binary else cv2.NORM_L2
+    matcher = cv2.BFMatcher(norm)
+    knn = matcher.knnMatch(fa.desc, fb.desc, k=2) if mask is None else matcher.knnMatch(fa.desc, fb.desc, k=2, mask=mask)
+    qa, tb = [], []
+    for m in knn:
+        if (len(m) == 2 and m[0].distance < ratio * m[1].distance) or (len(m) == 1 and mask is not None):
+            qa.append(m[0].queryIdx)
+            tb.append(m[0].trainIdx)
+    return np.asarray(qa, dtype=np.int64), np.asarray(tb, dtype=np.int64)
+
+
+def _guided_subsets(fa: Features, fb: Features, prior_H: np.ndarray, size_wh: tuple[int, int], radius: float):
+    """Keypoints of each frame that the prior puts inside the other, and the spatial gate mask."""
+    w, h = size_wh
+    pred = cv2.perspectiveTransform(fa.xy.reshape(-1, 1, 2).astype(np.float64), prior_H).reshape(-1, 2)
+    back = cv2.perspectiveTransform(fb.xy.reshape(-1, 1, 2).astype(np.float64), np.linalg.inv(prior_H)).reshape(-1, 2)
+    m = radius
+    sa = np.flatnonzero((pred[:, 0] > -m) & (pred[:, 0] < w + m) & (pred[:, 1] > -m) & (pred[:, 1] < h + m))
+    sb = np.flatnonzero((back[:, 0] > -m) & (back[:, 0] < w + m) & (back[:, 1] > -m) & (back[:, 1] < h + m))
+    d2 = ((pred[sa, None, :] - fb.xy[None, sb, :]) ** 2).sum(-1)
+    return sa, sb, (d2 < radius * radius).astype(np.uint8)
+
+
+def plausible_homography(H: np.ndarray, size_wh: tuple[int, int], params: MatchParams) -> str:
+    """Empty string if ``H`` is a plausible frame-to-frame view change of a wall, else the reason."""
+    if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        return "degenerate homography"
+    H = H / H[2, 2]
+    det = np.linalg.det(H[:2, :2])
+    if det <= 0:
+        return "homography flips the image"
+    scale = np.sqrt(det)
+    if not (1 / params.max_scale_change <= scale <= params.max_scale_change):
+        return f"implausible scale change {scale:.2f}"
+    sv = np.linalg.svd(H[:2, :2], compute_uv=False)
+    if sv[0] / sv[1] > 1.5:
+        return f"implausible shear/anisotropy {sv[0] / sv[1]:.2f}"
+    if np.max(np.abs(H[2, :2])) > params.max_perspective:
+        return "implausible perspective"
+    w, h = size_wh
+    corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], float).T
+    if np.any((H @ corners)[2] <= 0):
+        return "homography maps the frame through infinity"
+    return ""
+
+
+def match_pair(
+    i: int,
+    j: int,
+    fa: Features,
+    fb: Features,
+    size_wh: tuple[int, int],
+    *,
+    params: MatchParams = MatchParams(),
+    prior_H: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+) -> PairMatch | PairFailure:
+    """Register frame ``i`` to frame ``j`` from their features.
+
+    ``prior_H`` (i -> j), when given, is the placement predicted by the current layout; a
+    homography that moves the frame centre further than ``prior_tolerance`` of the diagonal from
+    it is rejected as a false match.
+    """
+    if len(fa) < params.min_inliers or len(fb) < params.min_inliers:
+        return PairFailure(i, j, f"too few features ({min(len(fa), len(fb))})")
+    if prior_H is None:
+        qa, tb = _knn_ratio(fa, fb, params.ratio)
+    else:  # guided: only candidates near where the prior puts them
+        sa, sb, mask = _guided_subsets(fa, fb, prior_H, size_wh, params.guided_radius * float(np.hypot(*size_wh)))
+        if len(sa) < params.min_inliers or len(sb) < params.min_inliers:
+            return PairFailure(i, j, f"too few features in the predicted overlap ({min(len(sa), len(sb))})")
+        sub_a = Features(fa.xy[sa], fa.desc[sa], fa.binary)
+        sub_b = Features(fb.xy[sb], fb.desc[sb], fb.binary)
+        qa, tb = _knn_ratio(sub_a, sub_b, params.ratio, mask)
+        qa, tb = sa[qa], sb[tb]
+    if len(qa) < params.min_inliers:
+        return PairFailure(i, j, f"too few matches ({len(qa)})", len(qa))
+    src, dst = fa.xy[qa], fb.xy[tb]
+    seed = int(rng.integers(2**31)) if rng is not None else 0
+    cv2.setRNGSeed(seed)
+    H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, params.ransac_px, maxIters=5000, confidence=0.999)
+    if H is None or mask is None:
+        return PairFailure(i, j, "no homography found", len(qa))
+    inl = mask.ravel().astype(bool)
+    n_in = int(inl.sum())
+    if n_in < params.min_inliers:
+        return PairFailure(i, j, f"too few inliers ({n_in})", len(qa))
+    if n_in < params.min_inlier_ratio * len(qa):
+        return PairFailure(i, j, f"inlier ratio {n_in / len(qa):.2f} too low (repetitive texture?)", len(qa))
+    why = plausible_homography(H, size_wh, params)
+    if why:
+        return PairFailure(i, j, why, len(qa))
+    w, h = size_wh
+    hull = cv2.convexHull(src[inl].astype(np.float32))
+    if cv2.contourArea(hull) < params.min_spread * w * h:
+        return PairFailure(i, j, "inliers bunched in a small patch", len(qa))
+    if prior_H is not None:
+        c = np.array([w / 2, h / 2, 1.0])
+        p, q = H @ c, prior_H @ c
+        if np.hypot(*(p[:2] / p[2] - q[:2] / q[2])) > params.prior_tolerance * np.hypot(w, h):
+            return PairFailure(i, j, "disagrees with the predicted layout", len(qa))
+    return PairMatch(i, j, H / H[2, 2], src[inl], dst[inl], len(qa))

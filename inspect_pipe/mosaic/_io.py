@@ -1,0 +1,112 @@
+"""File adapters: a folder of images as a :class:`FrameSource`, and atomic output writing."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from inspect_pipe.errors import InputError
+
+from ._register import FrameError
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm"}
+
+
+def _truncation(path: Path) -> str:
+    """Reason if a JPEG or PNG file is cut short (decoders may silently return a partial image)."""
+    suffix = path.suffix.lower()
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as fh:
+            head = fh.read(8)
+            fh.seek(max(size - 16, 0))
+            tail = fh.read()
+    except OSError as err:
+        return f"cannot read ({err.strerror})"
+    if size == 0:
+        return "empty file"
+    if suffix in {".jpg", ".jpeg"}:
+        if head[:2] != b"\xff\xd8":
+            return "not a JPEG file"
+        if b"\xff\xd9" not in tail:
+            return "truncated JPEG (no end-of-image marker)"
+    if suffix == ".png":
+        if head != b"\x89PNG\r\n\x1a\n":
+            return "not a PNG file"
+        if b"IEND" not in tail:
+            return "truncated PNG (no IEND chunk)"
+    return ""
+
+
+def read_image(path: Path) -> np.ndarray:
+    """8-bit BGR (or grey) image; raises :class:`FrameError` with the reason."""
+    why = _truncation(path)
+    if why:
+        raise FrameError(why)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FrameError("unreadable or corrupt image")
+    if img.dtype == np.uint16:
+        img = (img / 257).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise FrameError(f"unsupported pixel type {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img
+
+
+class FolderSource:
+    """Images of a folder, sorted by name, loaded one at a time."""
+
+    def __init__(self, folder: Path) -> None:
+        folder = Path(folder)
+        if not folder.exists():
+            raise InputError(folder, "not found", "give a sweep directory or a folder of images")
+        if not folder.is_dir():
+            raise InputError(folder, "not a directory", "give a sweep directory or a folder of images")
+        self.folder = folder
+        self.paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        if not self.paths:
+            raise InputError(folder, "no images found", f"expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def name(self, i: int) -> str:
+        return self.paths[i].name
+
+    def path(self, i: int) -> Path:
+        return self.paths[i]
+
+    def load(self, i: int) -> np.ndarray:
+        return read_image(self.paths[i])
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def write_json(path: Path, obj: dict) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=1) + "\n").encode())

@@ -1,0 +1,135 @@
+"""The mosaic step: register a frame source, blend each group, write ``OUT/``."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+import inspect_pipe
+
+from ._blend import BlendParams, CanvasTooLarge, render
+from ._io import write_json, write_png
+from ._register import FrameSource, Registration, RegisterParams, register
+
+FORMAT = "inspect_pipe.mosaic/1"
+
+
+@dataclass(frozen=True)
+class MosaicParams:
+    register: RegisterParams = field(default_factory=RegisterParams)
+    blend: BlendParams = field(default_factory=BlendParams)
+
+
+@dataclass
+class MosaicOutput:
+    """What was written, for the caller to report on."""
+
+    out_dir: Path
+    images: list[Path]
+    registration: Registration
+    H: dict[int, np.ndarray]  # frame -> mosaic px of its group's image
+    group_of: dict[int, int]
+    problems: list[str]  # bad-input findings, one line each (first is the headline)
+
+    @property
+    def n_placed(self) -> int:
+        return len(self.H)
+
+
+def _image_name(group: int) -> str:
+    return "mosaic.png" if group == 0 else f"mosaic_group{group}.png"
+
+
+def run_mosaic(
+    source: FrameSource,
+    out_dir: Path,
+    *,
+    params: MosaicParams = MosaicParams(),
+    progress: Callable[[str, int, int], None] | None = None,
+    extra: dict | None = None,
+) -> MosaicOutput:
+    """Mosaic ``source`` into ``out_dir``: ``mosaic.png`` (largest group), ``mosaic_group<k>.png``
+    for other groups, and ``mosaic.json``. Never raises on bad frames: they are listed."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reg = register(source, params=params.register, progress=progress)
+    H_all: dict[int, np.ndarray] = {}
+    group_of: dict[int, int] = {}
+    images: list[Path] = []
+    groups_json = []
+    unplaced = dict(reg.unplaced)
+    for g, group in enumerate(reg.groups):
+        if progress:
+            progress("blending", g + 1, len(reg.groups))
+        try:
+            mosaic, Hc = render(source.load, group.H, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
+        except CanvasTooLarge as err:
+            for f in group.frames:
+                unplaced[f] = f"group layout implausible: {err}"
+            continue
+        k = len(images)
+        path = out_dir / _image_name(k)
+        write_png(path, mosaic)
+        images.append(path)
+        for f, h in Hc.items():
+            H_all[f] = h
+            group_of[f] = k
+        groups_json.append({
+            "id": k, "image": path.name, "size_wh": [int(mosaic.shape[1]), int(mosaic.shape[0])],
+            "n_frames": len(group.frames), "rms_px": round(group.rms_px, 4),
+        })
+    single_frame = len(source) == 1 and not unplaced
+    if single_frame:  # one image is its own mosaic
+        img = source.load(0)
+        h, w = img.shape[:2]
+        path = out_dir / _image_name(0)
+        bgra = np.dstack([img if img.ndim == 3 else np.repeat(img[..., None], 3, 2), np.full((h, w), 255, np.uint8)])
+        write_png(path, bgra)
+        images.append(path)
+        H_all[0], group_of[0] = np.eye(3), 0
+        groups_json.append({"id": 0, "image": path.name, "size_wh": [w, h], "n_frames": 1, "rms_px": 0.0})
+        unplaced.pop(0, None)
+
+    doc = {
+        "format": FORMAT,
+        "software": f"inspect_pipe {inspect_pipe.__version__}",
+        "mosaic": images[0].name if images else None,
+        "frames": [
+            {"index": f, "file": source.name(f), "H": H_all[f].tolist(), "group": group_of[f], "image": _image_name(group_of[f])}
+            for f in sorted(H_all)
+        ],
+        "unplaced": [{"index": f, "file": source.name(f), "reason": r} for f, r in sorted(unplaced.items())],
+        "groups": groups_json,
+        "n_input_frames": len(source),
+        "pairs": {"matched": len(reg.pairs), "rejected": len(reg.failures)},
+        "vignetting": None if reg.vignetting is None else {
+            "model": "1/(1 + a r^2 + b r^4), r = radius / half-diagonal", **asdict(reg.vignetting)
+        },
+        "params": asdict(params),
+    }
+    if extra:
+        doc.update(extra)
+    write_json(out_dir / "mosaic.json", doc)
+
+    problems = _problems(source, unplaced, H_all, single_frame)
+    return MosaicOutput(out_dir, images, reg, H_all, group_of, problems)
+
+
+_BAD_INPUT_MARKS = ("unreadable", "truncated", "not a ", "empty file", "cannot read", "unsupported", "size ")
+
+
+def _problems(source: FrameSource, unplaced: dict[int, str], H: dict[int, np.ndarray], single: bool) -> list[str]:
+    out = []
+    if single:
+        out.append(f"{source.name(0)}: only one image; a mosaic needs at least two overlapping images")
+    bad = [(f, r) for f, r in sorted(unplaced.items()) if r.startswith(_BAD_INPUT_MARKS)]
+    if bad:
+        f, r = bad[0]
+        more = f" (and {len(bad) - 1} more, listed in mosaic.json)" if len(bad) > 1 else ""
+        out.append(f"{source.name(f)}: {r}{more}")
+    if not H and len(source) > 1:
+        out.append(f"no two of the {len(source)} images overlap enough to register; nothing mosaicked")
+    return out

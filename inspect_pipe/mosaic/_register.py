@@ -1,0 +1,246 @@
+"""From frames to placed groups: features, pair selection, pairwise and global registration."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+
+from ._align import AlignParams, Correspondences, refine
+from ._features import Features, detect_features, to_gray
+from ._homography import MatchParams, PairFailure, PairMatch, match_pair
+from ._rectify import rectify
+from ._pairs import layout_pairs, short_links, temporal_pairs
+from ._vignetting import Vignetting, VignettingAccumulator
+
+
+class FrameError(Exception):
+    """A frame that cannot be used (unreadable, truncated, wrong size): the message is the reason."""
+
+
+class FrameSource(Protocol):
+    """What the mosaicer reads frames through; I/O stays in the adapter."""
+
+    def __len__(self) -> int: ...
+
+    def name(self, i: int) -> str: ...
+
+    def load(self, i: int) -> np.ndarray:
+        """BGR or grey uint8 image of frame ``i``; raises :class:`FrameError` with a reason."""
+        ...
+
+
+@dataclass(frozen=True)
+class RegisterParams:
+    detector: str = "sift"
+    max_features: int = 1500
+    focal_px: float | None = None  # known camera focal length: enables metric rectification
+    temporal_window: int = 2
+    layout_rounds: int = 2
+    min_overlap: float = 0.15
+    candidates_per_frame: int = 2
+    pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
+    match: MatchParams = MatchParams()
+    align: AlignParams = AlignParams()
+    seed: int = 0
+
+
+@dataclass
+class Group:
+    """A connected set of frames with their homographies (frame px -> group mosaic px)."""
+
+    frames: list[int]
+    H: dict[int, np.ndarray]
+    rms_px: float
+
+
+@dataclass
+class Registration:
+    size_wh: tuple[int, int]
+    groups: list[Group]
+    unplaced: dict[int, str]
+    pairs: list[PairMatch]
+    failures: list[PairFailure]
+    vignetting: Vignetting | None
+    n_features: dict[int, int] = field(default_factory=dict)
+
+
+Progress = Callable[[str, int, int], None]
+
+
+def _components(nodes: list[int], edges: list[PairMatch]) -> list[list[int]]:
+    idx = {f: k for k, f in enumerate(nodes)}
+    if not edges:
+        return [[f] for f in nodes]
+    rows = [idx[e.i] for e in edges]
+    cols = [idx[e.j] for e in edges]
+    g = csr_matrix((np.ones(len(edges)), (rows, cols)), shape=(len(nodes), len(nodes)))
+    _, labels = connected_components(g, directed=False)
+    comps: dict[int, list[int]] = defaultdict(list)
+    for f, lab in zip(nodes, labels):
+        comps[lab].append(f)
+    return sorted(comps.values(), key=lambda c: (-len(c), c[0]))
+
+
+def _initial_layout(comp: list[int], edges: list[PairMatch]) -> dict[int, np.ndarray]:
+    """Chain pairwise homographies along a maximum spanning tree (weights: inlier counts)."""
+    if len(comp) == 1:
+        return {comp[0]: np.eye(3)}
+    idx = {f: k for k, f in enumerate(comp)}
+    by_key = {}
+    rows, cols, wts = [], [], []
+    for e in edges:
+        if e.i in idx and e.j in idx:
+            rows.append(idx[e.i])
+            cols.append(idx[e.j])
+            wts.append(1.0 / (1 + e.n_inliers))  # minimum spanning tree of 1/inliers
+            by_key[(e.i, e.j)] = e.H
+    g = csr_matrix((wts, (rows, cols)), shape=(len(comp), len(comp)))
+    tree = minimum_spanning_tree(g)
+    tree = tree + tree.T
+    root = len(comp) // 2
+    order, parent = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+    H = {comp[root]: np.eye(3)}
+    for k in order[1:]:
+        child, par = comp[k], comp[parent[k]]
+        if (child, par) in by_key:
+            c2p = by_key[(child, par)]
+        else:
+            c2p = np.linalg.inv(by_key[(par, child)])
+        Hc = H[par] @ c2p
+        H[child] = Hc / Hc[2, 2]
+    return H
+
+
+def _correspondences(edges: list[PairMatch], k: int, rng: np.random.Generator) -> Correspondences:
+    fi, fj, P, Q = [], [], [], []
+    for e in edges:
+        n = e.n_inliers
+        sel = rng.choice(n, size=min(k, n), replace=False) if n > k else np.arange(n)
+        fi.append(np.full(len(sel), e.i))
+        fj.append(np.full(len(sel), e.j))
+        P.append(e.src[sel])
+        Q.append(e.dst[sel])
+    if not edges:
+        z = np.zeros((0, 2))
+        return Correspondences(np.zeros(0, int), np.zeros(0, int), z, z)
+    return Correspondences(np.concatenate(fi), np.concatenate(fj), np.concatenate(P).astype(float), np.concatenate(Q).astype(float))
+
+
+def register(
+    source: FrameSource,
+    *,
+    params: RegisterParams = RegisterParams(),
+    progress: Progress | None = None,
+) -> Registration:
+    """Place every frame it can; the rest go to ``unplaced`` with a reason. Never raises on bad frames."""
+    rng = np.random.default_rng(params.seed)
+    n = len(source)
+    feats: dict[int, Features] = {}
+    unplaced: dict[int, str] = {}
+    size_wh: tuple[int, int] | None = None
+    vig = VignettingAccumulator()
+    for i in range(n):
+        if progress:
+            progress("features", i + 1, n)
+        try:
+            img = source.load(i)
+        except FrameError as err:
+            unplaced[i] = str(err)
+            continue
+        h, w = img.shape[:2]
+        if size_wh is None:
+            size_wh = (w, h)
+        elif (w, h) != size_wh:
+            unplaced[i] = f"size {w}x{h} differs from the sweep's {size_wh[0]}x{size_wh[1]}"
+            continue
+        gray = to_gray(img)
+        vig.add(gray)
+        feats[i] = detect_features(gray, detector=params.detector, max_features=params.max_features)
+    if size_wh is None:
+        return Registration((0, 0), [], unplaced, [], [], None)
+    valid = sorted(feats)
+
+    accepted: list[PairMatch] = []
+    failures: list[PairFailure] = []
+    tried: set[tuple[int, int]] = set()
+
+    def try_pairs(pairs: list[tuple[int, int]], priors: dict[tuple[int, int], np.ndarray]) -> None:
+        for k, (i, j) in enumerate(pairs):
+            if progress:
+                progress("matching", k + 1, len(pairs))
+            tried.add((i, j))
+            res = match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=rng)
+            (accepted if res else failures).append(res)
+
+    temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
+    try_pairs(temporal, {})
+
+    layouts: dict[int, np.ndarray] = {}
+    for _round in range(params.layout_rounds):
+        comps = _components(valid, accepted)
+        new: list[tuple[int, int]] = []
+        priors = {}
+        for comp in comps:
+            if len(comp) < 2:
+                continue
+            H = _initial_layout(comp, accepted)
+            if _round > 0 and len(comp) >= 3:
+                H = refine(H, _correspondences([e for e in accepted if e.i in H], params.align.points_per_pair, rng), size_wh, params=params.align).H
+            layouts.update(H)
+            linked = short_links([(e.i, e.j) for e in accepted if e.i in H])
+            for i, j, _ov in layout_pairs(H, size_wh, tried=tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
+                new.append((i, j))
+                priors[(i, j)] = np.linalg.inv(H[j]) @ H[i]
+        if not new:
+            break
+        try_pairs(new, priors)
+
+    groups: list[Group] = []
+    edges = list(accepted)
+    for _attempt in range(3):
+        groups = []
+        dropped = False
+        for comp in _components(valid, edges):
+            if len(comp) < 2:
+                continue
+            H0 = _initial_layout(comp, edges)
+            comp_set = set(comp)
+            comp_edges = [e for e in edges if e.i in comp_set]
+            res = refine(H0, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh, params=params.align)
+            bad = {key for key, r in res.per_pair_rms_px.items() if r > params.pair_outlier_px}
+            if bad:
+                for e in comp_edges:
+                    if (e.i, e.j) in bad:
+                        failures.append(PairFailure(e.i, e.j, f"inconsistent with the global alignment ({res.per_pair_rms_px[(e.i, e.j)]:.1f} px)", e.n_matches))
+                edges = [e for e in edges if (e.i, e.j) not in bad]
+                dropped = True
+            H_final = res.H
+            if params.focal_px and len(comp) >= 5:
+                H_final, _ = rectify(res.H, size_wh, params.focal_px)
+            groups.append(Group(sorted(comp), H_final, res.rms_px))
+        if not dropped:
+            break
+
+    placed = {f for g in groups for f in g.frames}
+    reasons: dict[int, list[str]] = defaultdict(list)
+    for fl in failures:
+        reasons[fl.i].append(fl.reason)
+        reasons[fl.j].append(fl.reason)
+    for f in valid:
+        if f not in placed:
+            why = reasons.get(f)
+            if len(feats[f]) < params.match.min_inliers:
+                unplaced[f] = f"too few features ({len(feats[f])}): texture too poor to register"
+            elif why:
+                unplaced[f] = "no overlapping frame could be registered: " + max(set(why), key=why.count)
+            else:
+                unplaced[f] = "no overlapping frame"
+    groups.sort(key=lambda g: (-len(g.frames), g.frames[0]))
+    return Registration(
+        size_wh, groups, dict(sorted(unplaced.items())), edges, failures, vig.result(), {f: len(feats[f]) for f in valid}
+    )
