@@ -128,7 +128,7 @@ def run(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file (default: the shipped one).")] = None,
-    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64).", min=256)] = 1024,
+    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64).", min=256)] = 768,
 ) -> None:
     """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json.
 

@@ -10,9 +10,9 @@ import numpy as np
 from ._features import ALIGN, SUPPORT_PX, check_image, compute_features
 from ._model import CONTEXT_SUPPORT_PX, ClassModel, DefectModel, class_logit, sigmoid
 
-#: Default tile core size (px, a multiple of ALIGN). A tile of 1024 + 2 x margin px holds about
-#: 25 float32 feature maps at once: ~0.4 GB, independent of the image size.
-TILE_PX = 1024
+#: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x margin px holds about
+#: 28 float32 feature maps at once: ~0.3 GB, independent of the image size.
+TILE_PX = 768
 
 
 @dataclass(frozen=True)
@@ -47,8 +47,10 @@ class Detection:
 
 
 def _margin_px(model: DefectModel, kinds) -> int:
-    sig = max(model.classes[k].smooth_sigma_px for k in kinds)
-    m = SUPPORT_PX + CONTEXT_SUPPORT_PX + int(np.ceil(4 * sig))
+    m = max(
+        SUPPORT_PX + CONTEXT_SUPPORT_PX * (len(c.stages) - 1) + int(np.ceil(4 * c.smooth_sigma_px))
+        for c in (model.classes[k] for k in kinds)
+    )
     return int(np.ceil(m / ALIGN) * ALIGN)
 
 

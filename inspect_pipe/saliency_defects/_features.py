@@ -48,10 +48,14 @@ FEATURE_NAMES: tuple[str, ...] = (
     "rchrom",  # red chromaticity R / (R + G + B)
     "rough",  # texture energy: local mean |I - G_1(I)| (fine-scale roughness, GLCM-energy proxy)
     "rough2",  # local standard deviation of I at level 2 (coarse roughness)
+    "lab_a",  # CIELAB a* (green-red), smoothed
+    "lab_b",  # CIELAB b* (blue-yellow), smoothed
+    "sat_mean",  # HSV saturation averaged over 31 px (colour of the surrounding region)
+    "rchrom_mean",  # red chromaticity averaged over 31 px
     # cracks: thin, dark, elongated
     "ridge1",  # sigma^2 * largest Hessian eigenvalue at sigma 1 px (dark valley > 0)
     "ridge2",  # same at sigma 2 px
-    "ridge3",  # same at sigma 3 px
+    "ridge3",  # same at sigma 3 px (computed at half resolution, sigma 1.5)
     "dark",  # local darkness z-score (mean_15 - I) / (std_15 + eps)
     "line",  # dark line evidence: local mean - min over 12 orientations of the 11 px line mean
     "line2",  # same at half resolution (22 px lines)
@@ -226,6 +230,11 @@ def compute_features(image: np.ndarray) -> FeatureStack:
     out["hs"] = (hbin * N_SAT + sbin).astype(np.float32)
     out["val"] = cv2.GaussianBlur(hsv[:, :, 2].astype(np.float32) * np.float32(1 / 255), (0, 0), 1.0)
     out["rchrom"] = cv2.GaussianBlur(r / (r + g + b + np.float32(0.03)), (0, 0), 1.0)
+    lab = cv2.cvtColor(cv2.GaussianBlur(bgr, (0, 0), 1.0), cv2.COLOR_BGR2LAB)
+    out["lab_a"] = lab[:, :, 1].astype(np.float32)
+    out["lab_b"] = lab[:, :, 2].astype(np.float32)
+    out["sat_mean"] = cv2.blur(sat, (31, 31))
+    out["rchrom_mean"] = cv2.blur(out["rchrom"], (31, 31))
     hp = np.abs(grey - cv2.GaussianBlur(grey, (0, 0), 1.0))
     out["rough"] = cv2.blur(hp, (9, 9))
     l2i = pyr_i[2]
@@ -234,9 +243,9 @@ def compute_features(image: np.ndarray) -> FeatureStack:
     out["rough2"] = _to_level(cv2.sqrt(np.maximum(var, 0)), full)
 
     # ---- cracks: thin, dark, elongated ----
-    for name, s in (("ridge1", 1.0), ("ridge2", 2.0), ("ridge3", 3.0)):
-        l1, _ = _hessian_eigs(grey, s)
-        out[name] = l1
+    for name, s in (("ridge1", 1.0), ("ridge2", 2.0)):
+        out[name] = _hessian_eigs(grey, s)[0]
+    out["ridge3"] = _to_level(_hessian_eigs(pyr_i[1], 1.5)[0], full)
     mu = cv2.blur(grey, (15, 15))
     sd = cv2.sqrt(np.maximum(cv2.blur(grey * grey, (15, 15)) - mu * mu, 0))
     out["dark"] = (mu - grey) / (sd + np.float32(0.02))
@@ -252,5 +261,5 @@ def compute_features(image: np.ndarray) -> FeatureStack:
 
     data = np.empty((len(FEATURE_NAMES), h, w), np.float32)
     for k, name in enumerate(FEATURE_NAMES):
-        data[k] = out[name][:h, :w]
+        data[k] = out.pop(name)[:h, :w]  # pop: the padded maps are freed as the stack fills
     return FeatureStack(FEATURE_NAMES, data)

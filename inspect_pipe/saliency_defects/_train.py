@@ -41,7 +41,7 @@ class ClassTrainConfig:
     ignore_band_px: int = 0  # label-boundary band left out of the training samples
     pos_per_image: int = 2000
     neg_per_image: int = 2000
-    context: bool = False
+    context: int = 0  # number of auto-context stages after the first
     smooth_sigma_px: float = 0.0
     min_area_px: int = 20
     hysteresis_ratios: tuple[float, ...] = (1.0,)
@@ -59,16 +59,16 @@ class ClassTrainConfig:
 DEFAULT_CONFIGS = {
     "crack": ClassTrainConfig(
         cls="crack", features=GREY_FEATURES, needs_colour=False, tol_px=2.0, ignore_band_px=2,
-        pos_per_image=3000, neg_per_image=6000, context=True, min_area_px=20,
+        pos_per_image=3000, neg_per_image=6000, context=1, min_area_px=20,
         hysteresis_ratios=(1.0, 0.8, 0.6, 0.45),
     ),
     "corrosion": ClassTrainConfig(
         cls="corrosion", features=FEATURE_NAMES, needs_colour=True, tol_px=0.0, ignore_band_px=3,
-        pos_per_image=1500, neg_per_image=1500, context=True, smooth_sigma_px=2.0, min_area_px=64,
+        pos_per_image=1500, neg_per_image=1500, context=2, smooth_sigma_px=2.0, min_area_px=64,
     ),
     "surface": ClassTrainConfig(
         cls="surface", features=GREY_FEATURES, needs_colour=False, tol_px=0.0, ignore_band_px=1,
-        pos_per_image=600, neg_per_image=600, context=True, smooth_sigma_px=1.5, min_area_px=20,
+        pos_per_image=600, neg_per_image=600, context=1, smooth_sigma_px=1.5, min_area_px=20,
     ),
 }
 
@@ -127,9 +127,9 @@ def _tables(names, pos: np.ndarray, neg: np.ndarray) -> list[FeatureTable]:
             if hi <= lo:
                 hi = lo + 1e-6
             nb, cat = N_BINS, False
-            sc = nb / (hi - lo)
-            bp = np.clip((xp - lo) * sc, 0, nb - 1).astype(int)
-            bn = np.clip((xn - lo) * sc, 0, nb - 1).astype(int)
+            probe = FeatureTable(name, lo, hi, np.zeros(nb, np.float32))
+            bp = np.minimum(probe.bins(xp.reshape(-1, 1)).ravel().astype(int), nb - 1)
+            bn = np.minimum(probe.bins(xn.reshape(-1, 1)).ravel().astype(int), nb - 1)
         hp = np.bincount(bp, minlength=nb).astype(np.float64) + 1.0
         hn = np.bincount(bn, minlength=nb).astype(np.float64) + 1.0
         if not cat:  # light smoothing along the value axis
@@ -145,7 +145,7 @@ def _llr_matrix(tables, x: np.ndarray) -> np.ndarray:
     cols = []
     for j, t in enumerate(tables):
         b = t.bins(x[:, j:j + 1].astype(np.float32)).ravel().astype(int)
-        cols.append(t.llr[b])
+        cols.append(t.lut()[b])
     return np.stack(cols, axis=1).astype(np.float64)
 
 
@@ -231,17 +231,19 @@ def train_class(items: Sequence[Loader], cfg: ClassTrainConfig, *, log=print) ->
     log(f"  {cfg.cls}: stage 1 on {sum(len(a) for a in acc.pos)} + {sum(len(a) for a in acc.neg)} px; "
         f"weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(names, stage1.weights)))
     stages = [stage1]
-    if cfg.context:
+    for k in range(cfg.context):
         acc2 = _Samples()
         for load in items:
             img, gt = load()
             fs = compute_features(img)
-            z = stage1.logit({n: fs[n] for n in names})
+            z = stages[0].logit({n: fs[n] for n in names})
+            for st in stages[1:]:
+                z = st.logit(context_features(z))
             pos_m, neg_m = _sample_masks(gt, cfg.ignore_band_px)
             _collect(context_features(z), CONTEXT_NAMES, pos_m, neg_m, cfg, rng, acc2)
-        stage2 = _fit_stage(list(CONTEXT_NAMES), acc2, cfg.l2)
-        log(f"  {cfg.cls}: context weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(CONTEXT_NAMES, stage2.weights)))
-        stages.append(stage2)
+        st = _fit_stage(list(CONTEXT_NAMES), acc2, cfg.l2)
+        log(f"  {cfg.cls}: context {k + 1} weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(CONTEXT_NAMES, st.weights)))
+        stages.append(st)
     thr, low, score = _operating_point(cfg, stages, items)
     log(f"  {cfg.cls}: operating point P >= {thr:.3f} (hysteresis {low:.3f}); train {score}")
     return ClassModel(cfg.cls, tuple(stages), thr, low, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour, score)

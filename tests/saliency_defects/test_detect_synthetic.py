@@ -9,10 +9,10 @@ from inspect_pipe.saliency_defects._metrics import mask_prf
 from ._synth import painted_wall_with_rust, pavement_with_cracks
 
 
-# Bounds measured with the shipped model v1 (rust P 0.75 / R 0.99; cracks P 0.66-0.68 / R 1.0),
+# Bounds measured with the shipped model v1 (rust P 0.66 / R 0.99; cracks P 0.66-0.69 / R 1.0),
 # less a margin. The VT labels the model learnt from are coarse polygons, so it over-grows blob
 # borders by a few pixels: precision is the weaker side for both classes.
-RUST_RECALL_MIN, RUST_PRECISION_MIN = 0.90, 0.65
+RUST_RECALL_MIN, RUST_PRECISION_MIN = 0.90, 0.60
 CRACK_RECALL_MIN, CRACK_PRECISION_MIN = 0.90, 0.55
 
 
