@@ -21,7 +21,7 @@ from ._vignetting import Vignetting
 
 @dataclass(frozen=True)
 class BlendParams:
-    seam_megapix: float = 0.05
+    seam_megapix: float = 0.02
     blend_strength: float = 5.0  # blend width as % of sqrt(canvas area), as OpenCV's stitcher
     exposure: str = "gain"  # gain | none
     seam: str = "dp"  # dp | voronoi | none

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
+import cv2
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
@@ -15,7 +18,7 @@ from ._features import Features, detect_features, to_gray
 from ._homography import MatchParams, PairFailure, PairMatch, match_pair
 from ._rectify import rectify
 from ._pairs import layout_pairs, short_links, temporal_pairs
-from ._vignetting import Vignetting, VignettingAccumulator
+from ._vignetting import THUMB_WH, Vignetting, VignettingAccumulator
 
 
 class FrameError(Exception):
@@ -43,10 +46,12 @@ class RegisterParams:
     layout_rounds: int = 2
     min_overlap: float = 0.15
     candidates_per_frame: int = 2
+    bridge_budget: int = 400  # unguided matches allowed for joining disconnected groups
     pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
     match: MatchParams = MatchParams()
     align: AlignParams = AlignParams()
     seed: int = 0
+    workers: int = 0  # threads for features and matching; 0: one per core (at most 4)
 
 
 @dataclass
@@ -116,6 +121,34 @@ def _initial_layout(comp: list[int], edges: list[PairMatch]) -> dict[int, np.nda
     return H
 
 
+def _bridge_candidates(
+    comps: list[list[int]], feats: dict[int, Features], tried: set[tuple[int, int]], budget: int,
+    keyframes: int = 4, per_component: int = 24,
+) -> list[tuple[int, int]]:
+    """Unguided pairs that may join disconnected groups (no common layout predicts them): a few
+    well-textured keyframes of each smaller group against evenly spaced frames of the larger."""
+
+    def spread(frames: list[int], k: int, textured: bool) -> list[int]:
+        if textured:
+            frames = sorted(frames, key=lambda f: -len(feats[f]))[: max(k * 3, k)]
+            frames.sort()
+        if len(frames) <= k:
+            return frames
+        return [frames[int(round(t))] for t in np.linspace(0, len(frames) - 1, k)]
+
+    out: list[tuple[int, int]] = []
+    for b in range(len(comps) - 1, 0, -1):
+        for a in range(b):
+            for fb in spread(comps[b], keyframes, True):
+                for fa in spread(comps[a], per_component, False):
+                    key = (min(fa, fb), max(fa, fb))
+                    if key not in tried:
+                        out.append(key)
+            if len(out) >= budget:
+                return out[:budget]
+    return out
+
+
 def _correspondences(edges: list[PairMatch], k: int, rng: np.random.Generator) -> Correspondences:
     fi, fj, P, Q = [], [], [], []
     for e in edges:
@@ -144,23 +177,32 @@ def register(
     unplaced: dict[int, str] = {}
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
-    for i in range(n):
-        if progress:
-            progress("features", i + 1, n)
+
+    def extract(i: int):
+        """Load one frame and detect its features (runs in a worker thread; OpenCV releases the GIL)."""
         try:
             img = source.load(i)
         except FrameError as err:
-            unplaced[i] = str(err)
-            continue
-        h, w = img.shape[:2]
-        if size_wh is None:
-            size_wh = (w, h)
-        elif (w, h) != size_wh:
-            unplaced[i] = f"size {w}x{h} differs from the sweep's {size_wh[0]}x{size_wh[1]}"
-            continue
+            return i, str(err), None, None
         gray = to_gray(img)
-        vig.add(gray)
-        feats[i] = detect_features(gray, detector=params.detector, max_features=params.max_features)
+        small = cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA)
+        return i, "", (img.shape[1], img.shape[0]), (small, detect_features(gray, detector=params.detector, max_features=params.max_features))
+
+    workers = params.workers or min(os.cpu_count() or 1, 4)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for i, err, wh, out in pool.map(extract, range(n)):
+            if progress:
+                progress("features", i + 1, n)
+            if err:
+                unplaced[i] = err
+                continue
+            if size_wh is None:
+                size_wh = wh
+            elif wh != size_wh:
+                unplaced[i] = f"size {wh[0]}x{wh[1]} differs from the sweep's {size_wh[0]}x{size_wh[1]}"
+                continue
+            vig.add_thumbnail(out[0])
+            feats[i] = out[1]
     if size_wh is None:
         return Registration((0, 0), [], unplaced, [], [], None)
     valid = sorted(feats)
@@ -169,36 +211,56 @@ def register(
     failures: list[PairFailure] = []
     tried: set[tuple[int, int]] = set()
 
+    def one_pair(pair: tuple[int, int], priors: dict[tuple[int, int], np.ndarray]):
+        i, j = pair
+        pair_rng = np.random.default_rng([params.seed, i, j])  # same result whatever the thread order
+        return match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=pair_rng)
+
     def try_pairs(pairs: list[tuple[int, int]], priors: dict[tuple[int, int], np.ndarray]) -> None:
-        for k, (i, j) in enumerate(pairs):
-            if progress:
-                progress("matching", k + 1, len(pairs))
-            tried.add((i, j))
-            res = match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=rng)
-            (accepted if res else failures).append(res)
+        tried.update(pairs)
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for k, res in enumerate(pool.map(lambda p: one_pair(p, priors), pairs)):
+                if progress:
+                    progress("matching", k + 1, len(pairs))
+                (accepted if res else failures).append(res)
 
     temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
     try_pairs(temporal, {})
 
-    layouts: dict[int, np.ndarray] = {}
-    for _round in range(params.layout_rounds):
-        comps = _components(valid, accepted)
-        new: list[tuple[int, int]] = []
-        priors = {}
-        for comp in comps:
-            if len(comp) < 2:
-                continue
-            H = _initial_layout(comp, accepted)
-            if _round > 0 and len(comp) >= 3:
-                H = refine(H, _correspondences([e for e in accepted if e.i in H], params.align.points_per_pair, rng), size_wh, params=params.align).H
-            layouts.update(H)
-            linked = short_links([(e.i, e.j) for e in accepted if e.i in H])
-            for i, j, _ov in layout_pairs(H, size_wh, tried=tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
-                new.append((i, j))
-                priors[(i, j)] = np.linalg.inv(H[j]) @ H[i]
-        if not new:
+    def layout_rounds() -> None:
+        for _round in range(params.layout_rounds):
+            new: list[tuple[int, int]] = []
+            priors = {}
+            for comp in _components(valid, accepted):
+                if len(comp) < 2:
+                    continue
+                H = _initial_layout(comp, accepted)
+                if _round > 0 and len(comp) >= 3:
+                    comp_edges = [e for e in accepted if e.i in H]
+                    H = refine(H, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh, params=params.align).H
+                linked = short_links([(e.i, e.j) for e in accepted if e.i in H])
+                for i, j, _ov in layout_pairs(H, size_wh, tried=tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
+                    new.append((i, j))
+                    priors[(i, j)] = np.linalg.inv(H[j]) @ H[i]
+            if not new:
+                break
+            try_pairs(new, priors)
+
+    layout_rounds()
+    budget = params.bridge_budget
+    while budget > 0:
+        comps = [c for c in _components(valid, accepted) if len(c) >= 2]
+        if len(comps) < 2:
             break
-        try_pairs(new, priors)
+        pairs = _bridge_candidates(comps, feats, tried, budget)
+        if not pairs:
+            break
+        budget -= len(pairs)
+        before = len(accepted)
+        try_pairs(pairs, {})
+        if len(accepted) == before:
+            break
+        layout_rounds()
 
     groups: list[Group] = []
     edges = list(accepted)

@@ -40,7 +40,11 @@ class VignettingAccumulator:
         self.min_falloff = min_falloff
 
     def add(self, gray: np.ndarray) -> None:
-        self._sum += cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA).astype(np.float64)
+        self.add_thumbnail(cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA))
+
+    def add_thumbnail(self, thumb: np.ndarray) -> None:
+        """``thumb``: the grey frame resized to ``THUMB_WH`` with INTER_AREA."""
+        self._sum += thumb.astype(np.float64)
         self._n += 1
 
     def result(self) -> Vignetting | None:
