@@ -1,0 +1,266 @@
+"""Pure conversions between the onboard stack's messages and MAVLink fields (no I/O).
+
+Frames. The hold's world frame is x forward (north), y left, z up; MAVLink's local frame is NED
+with north = world x, so east = -y and down = -z. Body axes: the stack's FLU (X forward, Y left,
+Z up), MAVLink's FRD. Between the two, attitude keeps its roll and negates pitch and yaw.
+Speeds of the stack are in the heading frame (body axes with roll and pitch removed).
+
+Optical flow (``OPTICAL_FLOW_RAD``) follows the PX4 convention: linear motion along the sensor's
++X induces positive ``integrated_y``, along -Y (left) positive ``integrated_x``; rotation shows in
+both the flow and the ``integrated_*gyro`` fields and is subtracted. The bottom unit (sensor id 0)
+has the vehicle's X and Y; the front unit (sensor id 1) is mounted with its X up, so its
+``integrated_y`` is the vertical speed and ``integrated_x`` the speed to the left along the wall.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from inspect_pipe.flight_stack.messages import SpeedCommand
+
+__all__ = [
+    "ArduCopterMode",
+    "Autopilot",
+    "DistanceSlot",
+    "G",
+    "LandedState",
+    "Px4Mode",
+    "VELOCITY_ONLY_MASK",
+    "attitude_from_world",
+    "distance_slot",
+    "flow_from_rad",
+    "flow_to_rad",
+    "heading_accel_from_imu",
+    "imu_from_world",
+    "velocity_setpoint_ned",
+    "speed_command_from_ned",
+]
+
+G = 9.81
+
+# SET_POSITION_TARGET_LOCAL_NED type_mask: ignore position (1|2|4), acceleration (64|128|256)
+# and yaw (1024): velocity and yaw rate only.
+VELOCITY_ONLY_MASK = 1 | 2 | 4 | 64 | 128 | 256 | 1024
+
+MAV_FRAME_LOCAL_NED = 1
+MAV_TYPE_QUADROTOR = 2
+MAV_TYPE_GCS = 6
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_INVALID = 8
+MAV_AUTOPILOT_PX4 = 12
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_STATE_STANDBY = 3
+MAV_STATE_ACTIVE = 4
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_TEMPORARILY_REJECTED = 1
+MAV_RESULT_DENIED = 2
+MAV_RESULT_UNSUPPORTED = 3
+MAV_RESULT_FAILED = 4
+MAV_DISTANCE_SENSOR_LASER = 0
+MAV_DISTANCE_SENSOR_ULTRASOUND = 1
+MAV_SENSOR_ROTATION_NONE = 0  # forward
+MAV_SENSOR_ROTATION_YAW_90 = 2  # right
+MAV_SENSOR_ROTATION_YAW_270 = 6  # left
+MAV_SENSOR_ROTATION_PITCH_270 = 25  # down
+MAV_DISTANCE_SENSOR_ULTRASOUND_OBSTACLE = 1  # OBSTACLE_DISTANCE sensor_type
+MAV_FRAME_BODY_FRD = 12
+
+
+class Autopilot(str, enum.Enum):
+    PX4 = "px4"  # offboard mode
+    ARDUPILOT = "ardupilot"  # guided mode (ArduCopter)
+
+
+class LandedState(enum.IntEnum):
+    """MAV_LANDED_STATE of EXTENDED_SYS_STATE."""
+
+    UNDEFINED = 0
+    ON_GROUND = 1
+    IN_AIR = 2
+    TAKEOFF = 3
+    LANDING = 4
+
+
+class Px4Mode(enum.IntEnum):
+    """PX4 main modes (custom_mode bits 16..23; AUTO sub-modes in bits 24..31)."""
+
+    MANUAL = 1
+    ALTCTL = 2
+    POSCTL = 3
+    AUTO = 4
+    OFFBOARD = 6
+
+
+PX4_AUTO_LOITER = 3
+PX4_AUTO_LAND = 6
+
+
+def px4_custom_mode(main: int, sub: int = 0) -> int:
+    return (main << 16) | (sub << 24)
+
+
+def px4_main_mode(custom_mode: int) -> int:
+    return (custom_mode >> 16) & 0xFF
+
+
+class ArduCopterMode(enum.IntEnum):
+    STABILIZE = 0
+    ALT_HOLD = 2
+    AUTO = 3
+    GUIDED = 4
+    LOITER = 5
+    LAND = 9
+    BRAKE = 17
+
+
+class DistanceSlot(str, enum.Enum):
+    """Which of the stack's range readings a DISTANCE_SENSOR message fills."""
+
+    BOTTOM_SONAR = "bottom_sonar"
+    BOTTOM_TOF = "bottom_tof"
+    FRONT_SONAR = "front_sonar"
+    LEFT_SONAR = "left_sonar"
+    RIGHT_SONAR = "right_sonar"
+
+
+# (sensor id, type, orientation, min cm, max cm) the simulated vehicle sends for each slot.
+DISTANCE_SENSORS: dict[DistanceSlot, tuple[int, int, int, int, int]] = {
+    DistanceSlot.BOTTOM_SONAR: (0, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_PITCH_270, 30, 500),
+    DistanceSlot.BOTTOM_TOF: (1, MAV_DISTANCE_SENSOR_LASER, MAV_SENSOR_ROTATION_PITCH_270, 20, 1400),
+    DistanceSlot.FRONT_SONAR: (2, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_NONE, 30, 500),
+    DistanceSlot.LEFT_SONAR: (3, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_YAW_270, 30, 500),
+    DistanceSlot.RIGHT_SONAR: (4, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_YAW_90, 30, 500),
+}
+
+
+def distance_slot(sensor_type: int, orientation: int) -> DistanceSlot | None:
+    """The slot a DISTANCE_SENSOR fills, by where it looks (ids differ between autopilots)."""
+    if orientation == MAV_SENSOR_ROTATION_PITCH_270:
+        return DistanceSlot.BOTTOM_TOF if sensor_type == MAV_DISTANCE_SENSOR_LASER else DistanceSlot.BOTTOM_SONAR
+    return {
+        MAV_SENSOR_ROTATION_NONE: DistanceSlot.FRONT_SONAR,
+        MAV_SENSOR_ROTATION_YAW_270: DistanceSlot.LEFT_SONAR,
+        MAV_SENSOR_ROTATION_YAW_90: DistanceSlot.RIGHT_SONAR,
+    }.get(orientation)
+
+
+def range_to_cm(range_m: float | None, max_cm: int) -> int:
+    """None (no echo) is sent as one more than the maximum: out of range for every reader."""
+    if range_m is None:
+        return max_cm + 1
+    return max(0, min(65535, int(round(range_m * 100.0))))
+
+
+def range_from_cm(current_cm: int, min_cm: int, max_cm: int) -> float | None:
+    if current_cm > max_cm or current_cm <= 0 or current_cm < min_cm:
+        return None
+    return current_cm / 100.0
+
+
+# --------------------------------------------------------------------------- optical flow
+
+
+@dataclass(frozen=True, slots=True)
+class FlowRad:
+    integrated_x: float
+    integrated_y: float
+    integrated_xgyro: float
+    integrated_ygyro: float
+    integration_time_us: int
+    distance_m: float  # negative: unknown (no sonar echo)
+    quality: int
+
+
+def flow_to_rad(a_m_s: float, b_m_s: float, quality: int, distance_m: float | None, dt_s: float,
+                gyro_x_rad_s: float = 0.0, gyro_y_rad_s: float = 0.0) -> FlowRad:
+    """Metric flow (bottom: vx, vy; front: vy, vz) -> angular flow over ``dt_s``.
+
+    ``a`` goes to ``integrated_y`` (motion along the sensor's X), ``b`` to ``integrated_x``.
+    """
+    gx, gy = gyro_x_rad_s * dt_s, gyro_y_rad_s * dt_s
+    if distance_m is None or distance_m <= 0.0 or quality <= 0:
+        return FlowRad(gx, gy, gx, gy, int(dt_s * 1e6), -1.0, 0)
+    return FlowRad(b_m_s * dt_s / distance_m + gx, a_m_s * dt_s / distance_m + gy, gx, gy, int(round(dt_s * 1e6)), distance_m, quality)
+
+
+def flow_from_rad(integrated_x: float, integrated_y: float, integrated_xgyro: float, integrated_ygyro: float,
+                  integration_time_us: int, distance_m: float, quality: int) -> tuple[float, float, int]:
+    """Angular flow -> metric flow (a, b, quality), gyro compensated; quality 0 without scale."""
+    dt = integration_time_us * 1e-6
+    if dt <= 0.0 or distance_m <= 0.0 or not all(map(math.isfinite, (integrated_x, integrated_y, distance_m))):
+        return 0.0, 0.0, 0
+    a = (integrated_y - integrated_ygyro) * distance_m / dt
+    b = (integrated_x - integrated_xgyro) * distance_m / dt
+    return a, b, max(0, min(255, int(quality)))
+
+
+# --------------------------------------------------------------------------- attitude and IMU
+
+
+def _rot_zyx(roll: float, pitch: float, yaw: float) -> tuple[tuple[float, float, float], ...]:
+    """Rotation matrix body -> frame for ZYX Euler angles (rows)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+def attitude_from_world(roll_w: float, pitch_w: float, yaw_w: float) -> tuple[float, float, float]:
+    """World-frame (FLU/x-north-left-up) Euler angles -> MAVLink NED/FRD Euler angles."""
+    return roll_w, -pitch_w, -yaw_w
+
+
+def imu_from_world(accel_world: tuple[float, float, float], roll_w: float, pitch_w: float, yaw_w: float) -> tuple[float, float, float]:
+    """World acceleration (m/s^2, gravity not included) -> accelerometer specific force, FRD."""
+    ax, ay, az = accel_world
+    a_ned = (ax, -ay, -az)
+    f_ned = (a_ned[0], a_ned[1], a_ned[2] - G)
+    R = _rot_zyx(*attitude_from_world(roll_w, pitch_w, yaw_w))
+    # body = R^T f_ned
+    return tuple(sum(R[i][j] * f_ned[i] for i in range(3)) for j in range(3))  # type: ignore[return-value]
+
+
+def heading_accel_from_imu(f_frd: tuple[float, float, float], roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
+    """Accelerometer specific force (FRD) and NED attitude -> acceleration in the stack's
+    heading frame (x forward, y left, z up), gravity removed."""
+    R = _rot_zyx(roll, pitch, yaw)
+    a_ned = [sum(R[i][j] * f_frd[j] for j in range(3)) for i in range(3)]
+    a_ned[2] += G
+    # NED -> world (x north, y west, z up), then into the heading frame (world yaw = -yaw).
+    ax, ay, az = a_ned[0], -a_ned[1], -a_ned[2]
+    yw = -yaw
+    c, s = math.cos(yw), math.sin(yw)
+    return c * ax + s * ay, -s * ax + c * ay, az
+
+
+# --------------------------------------------------------------------------- velocity set-points
+
+
+def velocity_setpoint_ned(cmd: SpeedCommand, yaw_ned: float) -> tuple[float, float, float, float]:
+    """Heading-frame speed command -> (vn, ve, vd, yaw_rate) for SET_POSITION_TARGET_LOCAL_NED."""
+    yw = -yaw_ned
+    c, s = math.cos(yw), math.sin(yw)
+    vxw = c * cmd.vx_m_s - s * cmd.vy_m_s
+    vyw = s * cmd.vx_m_s + c * cmd.vy_m_s
+    return vxw, -vyw, -cmd.vz_m_s, -cmd.yaw_rate_rad_s
+
+
+def speed_command_from_ned(vn: float, ve: float, vd: float, yaw_rate_ned: float, yaw_ned: float) -> SpeedCommand:
+    """Inverse of :func:`velocity_setpoint_ned` (the simulated autopilot's side)."""
+    vxw, vyw = vn, -ve
+    yw = -yaw_ned
+    c, s = math.cos(yw), math.sin(yw)
+    return SpeedCommand(c * vxw + s * vyw, -s * vxw + c * vyw, -vd, -yaw_rate_ned)
