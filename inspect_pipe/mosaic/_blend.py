@@ -75,10 +75,12 @@ def exposure_gains(
     pairs: list[tuple[int, int, float]],
     *,
     sigma_n: float = 10.0,
-    sigma_g: float = 0.1,
+    sigma_g: float = 0.5,
 ) -> np.ndarray:
     """Per-frame gains that equalise mean intensity in overlaps (the least-squares model of
-    Brown & Lowe / OpenCV's GainCompensator), over overlapping pairs only, so linear in frames."""
+    Brown & Lowe / OpenCV's GainCompensator), over overlapping pairs only, so linear in frames.
+    The prior keeping gains near 1 is weaker than OpenCV's (sigma_g 0.5, not 0.1), so a frame 40 %
+    darker is corrected, and the gains are scaled so that their median is 1."""
     pos = {f: k for k, f in enumerate(frames)}
     n = len(frames)
     A = np.zeros((n, n))
@@ -110,7 +112,8 @@ def exposure_gains(
     empty = np.diag(A) == 0
     A[empty, empty] = 1.0
     b[empty] = 1.0
-    return np.linalg.solve(A, b)
+    gains = np.linalg.solve(A, b)
+    return gains / np.median(gains)  # the typical frame keeps its exposure
 
 
 def render(

@@ -81,7 +81,7 @@ def run_mosaic(
             "id": k, "image": path.name, "size_wh": [int(mosaic.shape[1]), int(mosaic.shape[0])],
             "n_frames": len(group.frames), "rms_px": round(group.rms_px, 4),
         })
-    single_frame = len(source) == 1 and not unplaced
+    single_frame = len(source) == 1 and 0 in reg.n_features  # readable, nothing to register it to
     if single_frame:  # one image is its own mosaic
         img = source.load(0)
         h, w = img.shape[:2]
