@@ -1,8 +1,8 @@
 """Reproduce the shipped defect model: one command, single-threaded, deterministic.
 
-    .venv/bin/python tools/train_detector.py [--data ../shared/data] [--out PATH] [--only crack,...]
+    .venv/bin/python tools/train_detector.py ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz
 
-Same as ``inspect-pipe detect train --data ../shared/data``. Trains each class on the
+Same as ``inspect-pipe detect train DATA -o MODEL``. Trains each class on the
 'train' part of its set (split rule in inspect_pipe.saliency_defects._datasets) and never reads
 the 'eval' part.
 """

@@ -13,6 +13,8 @@ from ._model import CONTEXT_SUPPORT_PX, ClassModel, DefectModel, class_logit, si
 #: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x margin px holds about
 #: 28 float32 feature maps at once: ~0.3 GB, independent of the image size.
 TILE_PX = 768
+#: Images of at most this many tile areas are processed whole (see class_probabilities_u8).
+WHOLE_TILES = 5.5
 
 
 @dataclass(frozen=True)
@@ -68,13 +70,15 @@ def class_probabilities_u8(
     image: np.ndarray, model: DefectModel, kinds, *, tile_px: int = TILE_PX
 ) -> dict[str, np.ndarray]:
     """Like :func:`class_probabilities` but uint8 and processed in overlapping tiles when the
-    image is larger than one tile, so memory stays bounded; tile cores are aligned to the
+    image is larger than WHOLE_TILES tiles, so memory stays bounded; tile cores are aligned to the
     pyramid grid, so the result equals whole-image processing up to float rounding except within
     the margin of the image's own border effects."""
     h, w = image.shape[:2]
     if tile_px % ALIGN:
         raise ValueError(f"tile_px must be a multiple of {ALIGN}")
-    if h <= tile_px and w <= tile_px:
+    # tiles cost their margins (2-4x the pixels at 768 px), so a frame up to WHOLE_TILES tile
+    # areas (3 Mpx at the default) is processed at once: ~0.5 GB, still bounded
+    if h * w <= WHOLE_TILES * tile_px * tile_px:
         return {k: _to_u8(p) for k, p in class_probabilities(image, model, kinds).items()}
     m = _margin_px(model, kinds)
     out = {k: np.zeros((h, w), np.uint8) for k in kinds}
