@@ -4,7 +4,7 @@ time, and write the flight log."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 
@@ -19,7 +19,10 @@ HELP = (
     "Exit 0 when the flight ended landed or still flying with no collision, 1 on a collision, "
     "2 on a bad scenario.\n\nExamples:\n\n"
     "  inspect-pipe fly --scenario scenarios/fig6_top_attenuated_go.yaml --log out/fig6.jsonl\n\n"
-    "  inspect-pipe fly --scenario scenarios/fig7_inspection_sweep.yaml --log out/fig7.jsonl"
+    "  inspect-pipe fly --scenario scenarios/fig7_inspection_sweep.yaml --log out/fig7.jsonl\n\n"
+    "  inspect-pipe fly --scenario scenarios/inspection_sweep_wall.yaml --log out/wall.jsonl --sweep out/wall_sweep\n\n"
+    "  inspect-pipe fly --scenario scenarios/link_loss.yaml --log out/sim.jsonl --mavlink-sim udp:127.0.0.1:14540\n\n"
+    "  inspect-pipe fly --scenario scenarios/link_loss.yaml --log out/companion.jsonl --vehicle mavlink:udpout:127.0.0.1:14540"
 )
 
 
@@ -27,21 +30,46 @@ HELP = (
 def fly(
     scenario: Annotated[Path, typer.Option("--scenario", help="scenario file (YAML or JSON)")],
     log: Annotated[Path, typer.Option("--log", help="flight log to write (JSONL)")],
+    sweep: Annotated[Optional[Path], typer.Option("--sweep", help="also write the camera's sweep (directory)")] = None,
+    mavlink_sim: Annotated[Optional[str], typer.Option("--mavlink-sim", help="expose the simulator as a MAVLink vehicle on URL (udp:HOST:PORT listens), in real time")] = None,
+    autopilot: Annotated[str, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = "px4",
+    vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="mavlink:URL: fly a real autopilot with the scenario's operator script")] = None,
 ) -> None:
     """Fly a scenario in the simulated cargo hold and write the flight log."""
     sc = load_scenario(scenario)
+    if mavlink_sim is not None or vehicle is not None:  # real-time MAVLink flights (docs/base_station.md)
+        from inspect_pipe.flight.mavlink_fly import fly_mavlink
+
+        raise typer.Exit(fly_mavlink(sc, log, mavlink_sim=mavlink_sim, autopilot=autopilot, vehicle=vehicle, echo=typer.echo))
     if log.exists() and log.is_dir():
         raise InputError(str(log), "is a directory", "give a file path for the flight log")
+    recorder = None
+    if sweep is not None:
+        from inspect_pipe.capture.sources.sim import TrajectoryRecorder
+
+        if sweep.exists() and (not sweep.is_dir() or any(sweep.iterdir())):
+            raise InputError(str(sweep), "exists and is not an empty directory", "give a new sweep directory")
+        recorder = TrajectoryRecorder(sc)
     try:
         writer = FlightLogWriter(log, sc, tick_hz=StackParams().control.tick_hz)
         with writer:
-            result = run_scenario(sc, on_tick=writer)
+            if recorder is None:
+                result = run_scenario(sc, on_tick=writer)
+            else:
+                result = run_scenario(sc, on_tick=lambda rec: (writer(rec), recorder(rec)))
     except OSError as err:
         raise InputError(str(log), f"cannot write the flight log ({err.strerror})", "choose a writable path") from None
     typer.echo(
         f"{sc.name}: {result.status.value}, {result.final_fsm.value} after {result.sim_time_s:.1f} s "
         f"({result.speed_x_real_time:.0f}x real time); log {log}"
     )
+    if recorder is not None and sweep is not None:
+        from inspect_pipe.capture.sources.sim import capture_flight
+
+        cap = capture_flight(sc, recorder.feed, sweep)
+        typer.echo(f"sweep {sweep}: {cap.frames_written} frames at {sc.camera.fps:g} Hz ({cap.reason.value})")
+        if cap.writer_error:
+            raise InputError(str(sweep), cap.writer_error)
     if result.status is ExitStatus.COLLISION:
         typer.echo(f"collision at t={result.collided_at_s:.2f} s", err=True)
         raise typer.Exit(1)

@@ -11,6 +11,9 @@ import inspect_pipe
 from cli import mosaic as _mosaic
 from cli import detect as _detect
 from cli import fly as _fly
+from cli import base_station as _base_station
+from cli import capture as _capture
+from cli import doctor as _doctor
 
 app = typer.Typer(
     name="inspect-pipe",
@@ -32,6 +35,9 @@ def version() -> None:
 
 app.add_typer(_detect.app, name="detect")
 app.command("fly", help=_fly.HELP)(_fly.fly)
+app.command("base-station", help=_base_station.HELP)(_base_station.base_station)
+app.command("capture", help=_capture.HELP)(_capture.capture)
+app.command("doctor", help=_doctor.HELP)(_doctor.doctor)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -43,6 +43,7 @@ class TickRecord:
     battery_percent: float
     link_ok: bool
     collided: bool
+    rpy_true: tuple[float, float, float] = (0.0, 0.0, 0.0)  # roll, pitch, yaw (ZYX); the camera's attitude
 
 
 @dataclass(frozen=True)
@@ -128,10 +129,12 @@ def run_scenario(
         collided = geometry.wall_distance(x, y, z) < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
         prev_vz = vz_true
         if on_tick is not None:
+            rpy = sim.euler()
             on_tick(
                 TickRecord(
-                    t=now, pos_true=(x, y, z), vel_true=sim.velocity, yaw_true=sim.euler()[2], out=out,
+                    t=now, pos_true=(x, y, z), vel_true=sim.velocity, yaw_true=rpy[2], out=out,
                     dist_true=dist, battery_percent=battery.percent, link_ok=operator.link_ok, collided=collided,
+                    rpy_true=rpy,
                 )
             )
         if collided and collided_at is None:

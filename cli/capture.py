@@ -1,0 +1,109 @@
+"""``inspect-pipe capture --source SPEC -o SWEEP``: record a sweep from a camera."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cli._common import fail, one_line_errors
+from inspect_pipe.capture import SOURCE_SPECS, CaptureConfig, MonotonicClock, Progress, open_source, run_capture
+from inspect_pipe.errors import InputError
+
+HELP = f"""Capture a sweep (inspect_pipe.sweep/1: sweep.json, frames.jsonl, images/, COMPLETE) from a
+camera at a fixed rate.
+
+--source is one of {SOURCE_SPECS}. A simulated source (sim:SCENARIO) flies the scenario and renders
+its camera on the simulation clock, faster than real time; replay:PATH plays a sweep, an image
+folder or a video file at its recorded timing.
+
+Examples:
+
+  inspect-pipe capture --source sim:scenarios/inspection_sweep_wall.yaml -o out/sweep_sim
+
+  inspect-pipe capture --source v4l2:/dev/video0 -o out/sweep1 --rate 10 --duration 600
+
+  inspect-pipe capture --source ids --exposure 0.002 -o out/hold2 --vessel "MV Example" --hold 2 --wall fwd
+
+  inspect-pipe capture --source replay:out/sweep1 -o out/sweep1_copy
+
+Ctrl-C stops cleanly (the sweep gets its COMPLETE marker). Exit 0 when the sweep ended as asked
+(duration, end of the source), 1 when the camera was lost or writing failed (the sweep stays
+readable), 2 on bad input.
+"""
+
+
+class _LiveLine:
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, p: Progress) -> None:
+        line = (f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
+                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}")
+        if self.tty:
+            sys.stderr.write("\r" + line + "   ")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.tty:
+            sys.stderr.write("\n")
+
+
+@one_line_errors
+def capture(
+    source: Annotated[str, typer.Option("--source", help=SOURCE_SPECS)],
+    out: Annotated[Path, typer.Option("-o", "--out", help="sweep directory to create")],
+    rate: Annotated[float, typer.Option("--rate", help="frames per second")] = 10.0,
+    duration: Annotated[Optional[float], typer.Option("--duration", help="seconds to capture (default: until the source ends or Ctrl-C)")] = None,
+    frames: Annotated[Optional[int], typer.Option("--frames", help="stop after this many frames")] = None,
+    image_format: Annotated[str, typer.Option("--format", help="png (lossless) or jpg")] = "png",
+    exposure: Annotated[Optional[float], typer.Option("--exposure", help="manual exposure, s (default: the camera's)")] = None,
+    vessel: Annotated[Optional[str], typer.Option("--vessel", help="survey: vessel name")] = None,
+    hold: Annotated[Optional[str], typer.Option("--hold", help="survey: cargo hold")] = None,
+    wall: Annotated[Optional[str], typer.Option("--wall", help="survey: wall (e.g. fwd bulkhead)")] = None,
+    frame_spacing: Annotated[Optional[float], typer.Option("--frame-spacing", help="survey: ship frame spacing, m")] = None,
+    reference_frame: Annotated[Optional[str], typer.Option("--reference-frame", help="survey: ship frame number at the wall's left edge")] = None,
+) -> None:
+    if not (0 < rate <= 200):
+        raise fail(f"--rate {rate}: must be in (0, 200] Hz")
+    if duration is not None and duration <= 0:
+        raise fail(f"--duration {duration}: must be > 0 s")
+    if image_format not in ("png", "jpg"):
+        raise fail(f"--format {image_format}: choose png or jpg")
+    if ":" not in source and source != "ids":
+        raise InputError(f"--source {source}", "unknown source", f"one of {SOURCE_SPECS}")
+    survey = {k: v for k, v in {"vessel": vessel, "hold": hold, "wall": wall, "frame_spacing_m": frame_spacing,
+                                "reference_frame": reference_frame}.items() if v is not None}
+    src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure)
+    if time_base == "simulation_s":  # the scenario's camera section sets the simulated camera
+        rate = src.scenario.camera.fps if rate == 10.0 else rate
+    cfg = CaptureConfig(rate_hz=rate, duration_s=duration, max_frames=frames, image_format=image_format,
+                        survey=survey, time_base=time_base)
+    stop = threading.Event()
+    old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    live = _LiveLine()
+    try:
+        res = run_capture(src, out, clock=clock, config=cfg, on_progress=live, stop=stop)
+    except KeyboardInterrupt:  # pragma: no cover - run_capture handles it; belt and braces
+        res = None
+    finally:
+        live.close()
+        signal.signal(signal.SIGTERM, old)
+    if res is None:
+        raise typer.Exit(130)
+    jit = res.jitter_p99_s() * 1000
+    typer.echo(
+        f"{out}: {res.frames_written} frames, {res.reason.value}{': ' + res.detail if res.detail else ''}; "
+        f"drops {res.drops} (writer {res.dropped_backpressure}, camera {res.dropped_source}, late {res.skipped_deadlines}); "
+        f"interval jitter p99 {jit:.2f} ms; {res.bytes_written / 2**20:.1f} MiB"
+    )
+    problems = getattr(src, "problems", ())
+    if problems:
+        raise fail(str(problems[0]))
+    if not res.ok and res.reason.name != "INTERRUPTED":
+        typer.echo(f"error: {res.detail or res.reason.value}", err=True)
+        raise typer.Exit(1)

@@ -1,0 +1,566 @@
+"""The sweep directory (``inspect_pipe.sweep/1``): its writer and its reader.
+
+    SWEEP/sweep.json     format, camera model, camera-to-body pose, survey, source (written first, atomically)
+    SWEEP/frames.jsonl   one line per frame, appended and flushed after the frame's image is on disk
+    SWEEP/images/NNNNNN.png|jpg   written to a temporary name, then renamed
+    SWEEP/COMPLETE       written last: frame count, stop reason, drops, clock fit, sha256 of every file
+
+Because an image is renamed into place before its line is appended, a sweep killed at any moment
+lists no frame whose image is missing, and at most the frame being committed has an image on disk
+without a line. The reader stops at a partial last line.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import json
+import math
+import os
+import queue
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+import inspect_pipe
+from inspect_pipe.capture._exif import ImageMeta, embed
+from inspect_pipe.capture._geometry import CameraModel, Pose
+from inspect_pipe.errors import InputError
+
+__all__ = [
+    "COMPLETE_NAME",
+    "FORMAT",
+    "FrameRecord",
+    "FrameTruth",
+    "Sweep",
+    "SweepMeta",
+    "SweepWriter",
+    "WallTextureInfo",
+    "WriterStats",
+    "read_sweep",
+]
+
+FORMAT = "inspect_pipe.sweep/1"
+COMPLETE_FORMAT = "inspect_pipe.sweep_complete/1"
+COMPLETE_NAME = "COMPLETE"
+_FORMAT_RE = re.compile(r"^inspect_pipe\.sweep/(\d+)$")
+
+
+# =========================================================================== typed records
+
+
+@dataclass(frozen=True)
+class WallTextureInfo:
+    """The simulated front wall's texture (ground truth for mosaics and reports)."""
+
+    image: Path  # absolute
+    m_per_px: float
+    origin_uv: tuple[float, float]  # wall (u, v) m of the image's top-left corner; rows run down
+    defects_mask: Path | None = None
+    wall_width_m: float | None = None
+    wall_height_m: float | None = None
+
+    def to_json(self, sweep_dir: Path) -> dict:
+        def both(p: Path | None) -> dict | None:
+            if p is None:
+                return None
+            return {"path": str(Path(p).resolve()), "relative": os.path.relpath(Path(p).resolve(), sweep_dir.resolve())}
+
+        return {
+            "image": both(self.image),
+            "m_per_px": self.m_per_px,
+            "origin_uv": list(self.origin_uv),
+            "defects_mask": both(self.defects_mask),
+            "wall_width_m": self.wall_width_m,
+            "wall_height_m": self.wall_height_m,
+        }
+
+
+@dataclass(frozen=True)
+class SweepMeta:
+    format: str
+    camera: CameraModel  # K (3x3), dist, width, height
+    cam_to_body: Pose  # p_body = R @ p_cam + t
+    survey: dict[str, Any]  # vessel, hold, wall, frame_spacing_m, reference_frame (None when unknown)
+    software_version: str
+    source: dict[str, Any]  # kind, description, ...
+    rate_hz: float | None
+    image_format: str
+    created_utc: str | None
+    time_base: str  # what t_s counts: "host_monotonic_s" or "simulation_s"
+    simulation: dict[str, Any] | None = None  # scenario name, hold dimensions (simulated sweeps)
+    wall_texture: WallTextureInfo | None = None  # simulated sweeps with a textured front wall
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    @property
+    def dist(self) -> np.ndarray:
+        return self.camera.dist
+
+    @property
+    def width(self) -> int:
+        return self.camera.width
+
+    @property
+    def height(self) -> int:
+        return self.camera.height
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """Simulator ground truth at mid-exposure. Homographies map to *undistorted* frame pixels
+    (``cv2.undistort(img, K, dist)`` the frame, or distort the mapped points with the camera's
+    ``dist``)."""
+
+    position_m: tuple[float, float, float]  # vehicle centre, world
+    rpy_rad: tuple[float, float, float]  # vehicle roll, pitch, yaw (ZYX)
+    velocity_m_s: tuple[float, float, float]
+    R_world_cam: np.ndarray  # 3x3 camera-to-world rotation
+    cam_center_m: np.ndarray  # (3,) camera centre, world
+    H_wall_m_to_frame: np.ndarray  # 3x3: wall (u, v, 1) m -> frame pixel
+    H_wall_px_to_frame: np.ndarray | None  # 3x3: texture pixel (col, row, 1) -> frame pixel
+    motion_blur_px: float | None = None
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    index: int
+    image: str  # relative to the sweep
+    image_path: Path  # absolute
+    t_s: float  # mid-exposure, on the sweep's time base
+    exposure_s: float
+    t_host_s: float | None = None
+    t_utc: str | None = None
+    t_device_s: float | None = None
+    frame_id: int | None = None
+    gain: float | None = None
+    # vehicle state at mid-exposure (None when no state feed)
+    position_m: tuple[float, float, float] | None = None  # estimate, world frame
+    dist_front_m: float | None = None
+    height_m: float | None = None
+    velocity_m_s: tuple[float, float, float] | None = None
+    est_mode: int | None = None
+    fsm: str | None = None
+    inspection_mode: bool | None = None
+    # simulated sweeps
+    position_true_m: tuple[float, float, float] | None = None
+    yaw_true_rad: float | None = None
+    truth: FrameTruth | None = None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    path: Path
+    meta: SweepMeta
+    frames: list[FrameRecord]
+    complete: bool  # the COMPLETE marker is present
+    summary: dict[str, Any] | None  # from COMPLETE: stop reason, drops, clock fit
+    problems: tuple[InputError, ...] = ()  # what was skipped; the frames listed are all readable
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def raise_first_problem(self) -> None:
+        if self.problems:
+            raise self.problems[0]
+
+
+# =========================================================================== reading
+
+
+def _vec(x, n: int) -> tuple[float, ...] | None:
+    if isinstance(x, list) and len(x) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in x):
+        return tuple(float(v) for v in x)
+    return None
+
+
+def _mat(x) -> np.ndarray | None:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return a if a.shape == (3, 3) and np.all(np.isfinite(a)) else None
+
+
+def _num(x) -> float | None:
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else None
+
+
+def _resolve(sweep_dir: Path, entry) -> Path | None:
+    if not isinstance(entry, dict):
+        return None
+    for cand in (entry.get("path"), entry.get("relative")):
+        if isinstance(cand, str) and cand:
+            p = Path(cand) if Path(cand).is_absolute() else (sweep_dir / cand)
+            if p.exists():
+                return p.resolve()
+    cand = entry.get("path")
+    return Path(cand) if isinstance(cand, str) and cand else None
+
+
+def _meta(path: Path, doc: dict) -> SweepMeta:
+    where = str(path / "sweep.json")
+    fmt = doc.get("format")
+    m = _FORMAT_RE.match(fmt) if isinstance(fmt, str) else None
+    if m is None:
+        raise InputError(where, f"format is {fmt!r}", f"expected {FORMAT!r}")
+    if int(m.group(1)) != 1:
+        raise InputError(where, f"unknown format version {fmt!r}", f"this inspect-pipe {inspect_pipe.__version__} reads {FORMAT!r}; upgrade it")
+    cam = doc.get("camera")
+    if not isinstance(cam, dict):
+        raise InputError(where, "field 'camera': missing", "a camera model with K, dist, width, height")
+    K = _mat(cam.get("K"))
+    dist = cam.get("dist", [])
+    w, h = cam.get("width"), cam.get("height")
+    if K is None or not isinstance(w, int) or not isinstance(h, int) or w <= 0 or h <= 0:
+        raise InputError(where, "field 'camera': K must be 3x3 numbers and width/height positive integers")
+    if not isinstance(dist, list) or not all(_num(d) is not None for d in dist):
+        raise InputError(where, "field 'camera.dist': not a list of numbers")
+    camera = CameraModel(K, np.asarray(dist, float), w, h, str(cam.get("name", "camera")))
+    ctb = doc.get("cam_to_body") or {}
+    R, t = _mat(ctb.get("R")), _vec(ctb.get("t_m"), 3)
+    pose = Pose(R if R is not None else np.eye(3), np.asarray(t if t is not None else (0.0, 0.0, 0.0)))
+    sim = doc.get("simulation") if isinstance(doc.get("simulation"), dict) else None
+    texture = None
+    tex = (sim or {}).get("front_wall_texture")
+    if isinstance(tex, dict):
+        img = _resolve(path, tex.get("image"))
+        origin = _vec(tex.get("origin_uv"), 2)
+        mpp = _num(tex.get("m_per_px"))
+        if img is not None and origin is not None and mpp:
+            texture = WallTextureInfo(
+                img, mpp, origin, _resolve(path, tex.get("defects_mask")), _num(tex.get("wall_width_m")), _num(tex.get("wall_height_m"))
+            )
+    survey = {"vessel": None, "hold": None, "wall": None, "frame_spacing_m": None, "reference_frame": None}
+    if isinstance(doc.get("survey"), dict):
+        survey.update(doc["survey"])
+    return SweepMeta(
+        format=fmt, camera=camera, cam_to_body=pose, survey=survey,
+        software_version=str(doc.get("software_version", "")), source=doc.get("source") or {},
+        rate_hz=_num(doc.get("rate_hz")), image_format=str(doc.get("image_format", "png")),
+        created_utc=doc.get("created_utc"), time_base=str(doc.get("time_base", "host_monotonic_s")),
+        simulation=sim, wall_texture=texture, raw=doc,
+    )
+
+
+def _truth(d) -> FrameTruth | None:
+    if not isinstance(d, dict):
+        return None
+    pos, rpy = _vec(d.get("position_m"), 3), _vec(d.get("rpy_rad"), 3)
+    R, H = _mat(d.get("R_world_cam")), _mat(d.get("H_wall_m_to_frame"))
+    c = _vec(d.get("cam_center_m"), 3)
+    if pos is None or rpy is None or R is None or H is None or c is None:
+        return None
+    return FrameTruth(
+        position_m=pos, rpy_rad=rpy, velocity_m_s=_vec(d.get("velocity_m_s"), 3) or (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        R_world_cam=R, cam_center_m=np.asarray(c), H_wall_m_to_frame=H,
+        H_wall_px_to_frame=_mat(d.get("H_wall_px_to_frame")), motion_blur_px=_num(d.get("motion_blur_px")),
+    )
+
+
+def _record(sweep_dir: Path, d: dict) -> FrameRecord | str:
+    """A frame record, or why the line is not one."""
+    idx, img, t, exp = d.get("index"), d.get("image"), _num(d.get("t_s")), _num(d.get("exposure_s"))
+    if not isinstance(idx, int) or isinstance(idx, bool) or idx < 0:
+        return "field 'index' is not a non-negative integer"
+    if not isinstance(img, str) or not img or Path(img).is_absolute() or ".." in Path(img).parts:
+        return "field 'image' is not a file inside the sweep"
+    if t is None or exp is None:
+        return "fields 't_s' and 'exposure_s' must be numbers"
+    s = d.get("state") if isinstance(d.get("state"), dict) else {}
+    truth = _truth(d.get("truth"))
+    return FrameRecord(
+        index=idx, image=img, image_path=(sweep_dir / img).resolve(), t_s=t, exposure_s=exp,
+        t_host_s=_num(d.get("t_host_s")), t_utc=d.get("t_utc") if isinstance(d.get("t_utc"), str) else None,
+        t_device_s=_num(d.get("t_device_s")), frame_id=d.get("frame_id") if isinstance(d.get("frame_id"), int) else None,
+        gain=_num(d.get("gain")),
+        position_m=_vec(s.get("position_m"), 3), dist_front_m=_num(s.get("dist_front_m")), height_m=_num(s.get("height_m")),  # type: ignore[arg-type]
+        velocity_m_s=_vec(s.get("velocity_m_s"), 3), est_mode=s.get("est_mode") if isinstance(s.get("est_mode"), int) else None,  # type: ignore[arg-type]
+        fsm=s.get("fsm") if isinstance(s.get("fsm"), str) else None,
+        inspection_mode=s.get("inspection_mode") if isinstance(s.get("inspection_mode"), bool) else None,
+        position_true_m=truth.position_m if truth else None, yaw_true_rad=truth.rpy_rad[2] if truth else None,
+        truth=truth, raw=d,
+    )
+
+
+def read_sweep(path: str | Path, *, strict: bool = False) -> Sweep:
+    """Read a sweep directory.
+
+    Raises :class:`InputError` when it is not a sweep at all (no ``sweep.json``, bad JSON, an
+    unknown format version, no ``frames.jsonl``). Otherwise returns every whole, consistent frame;
+    a partial last line (an interrupted capture), a bad line or a frame whose image is missing is
+    skipped and described in ``Sweep.problems`` (``strict=True`` raises the first instead).
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(str(path), "not found" if not path.exists() else "not a directory", "give a sweep directory")
+    meta_path = path / "sweep.json"
+    if not meta_path.is_file():
+        raise InputError(str(meta_path), "missing", "not a sweep directory (capture writes sweep.json first)")
+    try:
+        doc = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(str(meta_path), f"not valid JSON ({err.__class__.__name__})", "a sweep.json written by inspect-pipe") from None
+    if not isinstance(doc, dict):
+        raise InputError(str(meta_path), "not a JSON object")
+    meta = _meta(path, doc)
+    frames_path = path / "frames.jsonl"
+    if not frames_path.is_file():
+        raise InputError(str(frames_path), "missing", "every sweep has a frames.jsonl, even an empty one")
+    raw = frames_path.read_bytes()
+    problems: list[InputError] = []
+    frames: list[FrameRecord] = []
+    seen: set[int] = set()
+    lines = raw.split(b"\n")
+    tail = lines.pop()  # after the last newline: b"" unless the last line is partial
+    if tail.strip():
+        problems.append(InputError(str(frames_path), f"truncated at line {len(lines) + 1} (partial last line ignored)", "an interrupted capture; the frames before it are read"))
+    for n, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            problems.append(InputError(str(frames_path), f"line {n}: not valid JSON (skipped)"))
+            continue
+        rec = _record(path, d) if isinstance(d, dict) else "not a JSON object"
+        if isinstance(rec, str):
+            problems.append(InputError(str(frames_path), f"line {n}: {rec} (skipped)"))
+            continue
+        if rec.index in seen:
+            problems.append(InputError(str(frames_path), f"line {n}: frame index {rec.index} repeated (skipped)"))
+            continue
+        try:
+            ok = rec.image_path.stat().st_size > 0
+        except OSError:
+            ok = False
+        if not ok:
+            problems.append(InputError(str(rec.image_path), f"image of frame {rec.index} listed in frames.jsonl line {n} is missing or empty (frame skipped)"))
+            continue
+        seen.add(rec.index)
+        frames.append(rec)
+    if strict and problems:
+        raise problems[0]
+    complete_path = path / COMPLETE_NAME
+    summary = None
+    complete = complete_path.is_file()
+    if complete:
+        try:
+            c = json.loads(complete_path.read_text())
+            summary = c.get("summary") if isinstance(c, dict) else None
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            problems.append(InputError(str(complete_path), "not valid JSON"))
+            complete = False
+    return Sweep(path=path.resolve(), meta=meta, frames=frames, complete=complete, summary=summary, problems=tuple(problems))
+
+
+def verify_checksums(path: str | Path) -> list[str]:
+    """Files whose sha256 differs from the COMPLETE marker's (empty list: all match)."""
+    path = Path(path)
+    doc = json.loads((path / COMPLETE_NAME).read_text())
+    bad = []
+    for rel, digest in doc.get("sha256", {}).items():
+        p = path / rel
+        if not p.is_file() or hashlib.sha256(p.read_bytes()).hexdigest() != digest:
+            bad.append(rel)
+    return bad
+
+
+# =========================================================================== writing
+
+
+@dataclass
+class WriterStats:
+    submitted: int = 0
+    written: int = 0
+    dropped_backpressure: int = 0
+    bytes_written: int = 0
+    encode_s: float = 0.0
+    commit_s: float = 0.0
+    max_queue: int = 0
+
+
+def _atomic_write(path: Path, data: bytes, *, fsync: bool) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            n = os.write(fd, view)
+            view = view[n:]
+        if fsync:
+            os.fsync(fd)
+    except BaseException:
+        os.close(fd)
+        tmp.unlink(missing_ok=True)
+        raise
+    os.close(fd)
+    os.replace(tmp, path)
+
+
+class SweepWriter:
+    """Writes a sweep without ever blocking the grabbing thread.
+
+    ``submit`` hands a frame to a bounded pipeline (``encoders`` threads encode PNG/JPEG in
+    parallel; one committer thread renames each image into place, then appends and flushes its
+    line, in frame order). When ``queue_frames`` frames are already waiting, ``submit`` returns
+    False: the frame is dropped and counted. A write error (disk full) stops the writer; ``error``
+    then holds the one-line reason and further frames are refused.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        meta: dict,
+        *,
+        image_format: str = "png",
+        png_compression: int = 1,
+        jpeg_quality: int = 95,
+        queue_frames: int = 32,
+        encoders: int = 2,
+        fsync_every_s: float = 1.0,
+        overwrite: bool = False,
+        write_bytes: Callable[[Path, bytes], None] | None = None,
+    ) -> None:
+        if image_format not in ("png", "jpg"):
+            raise InputError(str(path), f"image format {image_format!r} not supported", "png (lossless) or jpg")
+        self.path = Path(path)
+        if self.path.exists() and not self.path.is_dir():
+            raise InputError(str(self.path), "exists and is not a directory", "give a new sweep directory")
+        if self.path.is_dir() and any(self.path.iterdir()) and not overwrite:
+            raise InputError(str(self.path), "exists and is not empty", "give a new sweep directory")
+        self.images = self.path / "images"
+        try:
+            self.images.mkdir(parents=True, exist_ok=True)
+            for p in self.images.iterdir():  # overwrite: start clean
+                p.unlink()
+            for name in ("frames.jsonl", COMPLETE_NAME):
+                (self.path / name).unlink(missing_ok=True)
+            doc = {"format": FORMAT, "software_version": inspect_pipe.__version__, "image_format": image_format, **meta}
+            doc["format"] = FORMAT
+            _atomic_write(self.path / "sweep.json", (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
+            self._fh = open(self.path / "frames.jsonl", "ab", buffering=0)
+        except OSError as err:
+            raise InputError(str(self.path), f"cannot create the sweep ({err.strerror})", "choose a writable directory") from None
+        self.image_format = image_format
+        self._params = (
+            [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)] if image_format == "png" else [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]
+        )
+        self.queue_frames = int(queue_frames)
+        self.fsync_every_s = fsync_every_s
+        self._write_bytes = write_bytes or (lambda p, b: _atomic_write(p, b, fsync=False))
+        self.stats = WriterStats()
+        self.error: str | None = None
+        self.sha256: dict[str, str] = {}
+        self._pool = cf.ThreadPoolExecutor(max_workers=max(1, encoders), thread_name_prefix="sweep-encode")
+        self._pending: queue.Queue = queue.Queue()
+        self._lock = threading.Lock()
+        self._queued = 0
+        self._last_fsync = time.monotonic()
+        self._closed = False
+        self._committer = threading.Thread(target=self._commit_loop, name="sweep-commit", daemon=True)
+        self._committer.start()
+
+    # ------------------------------------------------------------------ producer side
+    def submit(self, index: int, image: np.ndarray, record: dict, image_meta: ImageMeta | None = None) -> bool:
+        """Queue frame ``index``; False when it was dropped (queue full or writer failed)."""
+        self.stats.submitted += 1
+        with self._lock:
+            full = self._queued >= self.queue_frames
+            if not full and self.error is None and not self._closed:
+                self._queued += 1
+                self.stats.max_queue = max(self.stats.max_queue, self._queued)
+            else:
+                self.stats.dropped_backpressure += 1
+                return False
+        name = f"images/{index:06d}.{self.image_format}"
+        fut = self._pool.submit(self._encode, image, image_meta)
+        self._pending.put((index, name, fut, record))
+        return True
+
+    @property
+    def queued(self) -> int:
+        return self._queued
+
+    def _encode(self, image: np.ndarray, image_meta: ImageMeta | None) -> bytes:
+        t0 = time.perf_counter()
+        ok, buf = cv2.imencode("." + self.image_format, image, self._params)
+        if not ok:
+            raise OSError("image encoding failed")
+        data = buf.tobytes()
+        if image_meta is not None:
+            data = embed(data, image_meta)
+        self.stats.encode_s += time.perf_counter() - t0
+        return data
+
+    # ------------------------------------------------------------------ committer
+    def _commit_loop(self) -> None:
+        while True:
+            item = self._pending.get()
+            if item is None:
+                return
+            index, name, fut, record = item
+            try:
+                if self.error is None:
+                    data = fut.result()
+                    t0 = time.perf_counter()
+                    self._write_bytes(self.path / name, data)
+                    line = json.dumps({"index": index, "image": name, "bytes": len(data), **record}, separators=(",", ":"))
+                    self._fh.write((line + "\n").encode())
+                    now = time.monotonic()
+                    if self.fsync_every_s is not None and now - self._last_fsync >= self.fsync_every_s:
+                        os.fsync(self._fh.fileno())
+                        self._last_fsync = now
+                    self.sha256[name] = hashlib.sha256(data).hexdigest()
+                    self.stats.written += 1
+                    self.stats.bytes_written += len(data)
+                    self.stats.commit_s += time.perf_counter() - t0
+            except OSError as err:
+                import errno as _errno
+
+                why = "disk full" if err.errno in (_errno.ENOSPC, _errno.EDQUOT) else (err.strerror or str(err))
+                self.error = f"{self.path / name}: cannot write ({why})"
+            except Exception as err:  # encoding failure: report, never kill the thread silently
+                self.error = f"{self.path / name}: {err}"
+            finally:
+                with self._lock:
+                    self._queued -= 1
+
+    # ------------------------------------------------------------------ end
+    def close(self, summary: dict | None = None, *, complete: bool = True) -> WriterStats:
+        """Wait for queued frames, then write COMPLETE (unless ``complete`` is False)."""
+        if self._closed:
+            return self.stats
+        self._closed = True
+        self._pending.put(None)
+        self._committer.join()
+        self._pool.shutdown(wait=True)
+        try:
+            os.fsync(self._fh.fileno())
+        except OSError:
+            pass
+        self._fh.close()
+        if complete:
+            try:
+                frames_sha = hashlib.sha256((self.path / "frames.jsonl").read_bytes()).hexdigest()
+                doc = {
+                    "format": COMPLETE_FORMAT,
+                    "frames": self.stats.written,
+                    "summary": {**(summary or {}), "written": self.stats.written, "dropped_backpressure": self.stats.dropped_backpressure,
+                                "bytes": self.stats.bytes_written, "writer_error": self.error},
+                    "sha256": {"frames.jsonl": frames_sha, "sweep.json": hashlib.sha256((self.path / "sweep.json").read_bytes()).hexdigest(), **self.sha256},
+                }
+                _atomic_write(self.path / COMPLETE_NAME, (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
+            except OSError as err:
+                self.error = self.error or f"{self.path / COMPLETE_NAME}: cannot write ({err.strerror})"
+        return self.stats
