@@ -1,0 +1,53 @@
+"""``inspect-pipe base-station``: the surveyor's web page in front of the simulator or an autopilot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cli._common import one_line_errors
+from inspect_pipe.errors import InputError
+
+HELP = (
+    "Serve the surveyor's base station: one web page with the live camera, height, speeds, "
+    "distances, estimation mode, flight state, battery, link, the behaviours acting and plain "
+    "feedback, and the commands (take-off, land, inspection mode, go/inspect ahead, speeds from "
+    "the keyboard or a gamepad).\n\n"
+    "Binds 127.0.0.1 unless --host is given; on any other address a token is printed and every "
+    "client must give it. One client controls, the others watch. Every command is logged.\n\n"
+    "Examples:\n\n"
+    "  inspect-pipe base-station                      # embedded simulator, http://127.0.0.1:8765/\n\n"
+    "  inspect-pipe base-station --vehicle sim:scenarios/fig7_inspection_sweep.yaml\n\n"
+    "  inspect-pipe base-station --vehicle mavlink:udpout:127.0.0.1:14540\n\n"
+    "  inspect-pipe base-station --host 0.0.0.0 --port 8080   # prints the token to give the tablet"
+)
+
+
+@one_line_errors
+def base_station(
+    port: Annotated[int, typer.Option("--port", min=1, max=65535, help="TCP port")] = 8765,
+    host: Annotated[str, typer.Option("--host", help="address to bind; not loopback: a token is required")] = "127.0.0.1",
+    vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="sim:SCENARIO.yaml or mavlink:URL (default: embedded simulator)")] = None,
+    token: Annotated[Optional[str], typer.Option("--token", help="token to require (default: a new random one off loopback)")] = None,
+    command_log: Annotated[Path, typer.Option("--command-log", help="JSONL log of every command with its client")] = Path("base_station_commands.jsonl"),
+) -> None:
+    """Serve the surveyor's base station."""
+    from inspect_pipe.flight.base_station import build_station, is_loopback_host, new_token, require_web, serve
+
+    require_web()
+    if token is not None and len(token) < 12:
+        raise InputError("--token", "too short", "at least 12 characters")
+    if not is_loopback_host(host) and token is None:
+        token = new_token()
+    if command_log.exists() and command_log.is_dir():
+        raise InputError(str(command_log), "is a directory", "give a file path for the command log")
+    station = build_station(vehicle, host=host, port=port, token=token, command_log=command_log)
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "")
+    typer.echo(f"base station for {station.vehicle_name}: {url}")
+    if token:
+        typer.echo(f"token: {token}  (give it to the surveyor's tablet; requests without it are refused)")
+    typer.echo(f"commands logged to {command_log}; Ctrl-C to stop")
+    serve(station, host=host, port=port)

@@ -1,0 +1,369 @@
+"""The base station: one web page (live state, camera, commands) over WebSockets (Starlette).
+
+Security: the server binds 127.0.0.1 unless told otherwise; on any other address every request
+must carry the token printed at start (``?token=``). WebSocket upgrades from a page of another
+origin are refused. One client controls at a time (the first to connect, or the first to ask once
+control is free); the others watch and their commands are refused with a message. Every command
+is logged (JSONL) with its client.
+
+Messages from the page (JSON objects, at most 1 KiB):
+
+* ``{"type": "stick", "vx", "vy", "vz", "yaw_rate", "t_ms"}`` at a steady 20 Hz (m/s, rad/s;
+  ``t_ms``: the page's wall clock, for the command latency);
+* ``{"type": "button", "button": "takeoff|land|go_ahead|inspection_mode_on|inspection_mode_off"}``;
+* ``{"type": "take_control"}``, ``{"type": "release_control"}``.
+
+To the page: ``hello``, ``state`` (20 Hz), ``image`` (5 Hz JPEG, base64), ``frame`` (captured
+thumbnails), ``role`` and ``error``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import datetime as _dt
+import hmac
+import itertools
+import json
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import IO, Any
+
+from inspect_pipe.flight.base_station.realtime import OperatorInbox, RealTimeFlight
+from inspect_pipe.flight_stack.messages import Button, SpeedCommand
+
+__all__ = ["BaseStation", "StationConfig", "is_loopback", "parse_client_message"]
+
+MAX_MESSAGE_BYTES = 1024
+BUTTONS = {b.value: b for b in Button}
+STICK_LIMITS = {"vx": 1.0, "vy": 1.0, "vz": 0.5, "yaw_rate": 0.8}  # what the page may ask for
+
+
+def is_loopback(host: str) -> bool:
+    return host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    host: str = "127.0.0.1"
+    port: int = 8765
+    token: str | None = None  # required when not on loopback
+    state_hz: float = 20.0
+    image_hz: float = 5.0
+    capture_hz: float = 2.0  # frames kept while inspection mode is on
+    command_log: Path | None = None
+
+
+class MessageError(ValueError):
+    pass
+
+
+def parse_client_message(text: str | bytes) -> dict:
+    """Validate one message from a page; raises :class:`MessageError` with a plain reason."""
+    if isinstance(text, bytes):
+        raise MessageError("binary messages are not accepted; send JSON text")
+    if len(text) > MAX_MESSAGE_BYTES:
+        raise MessageError(f"message longer than {MAX_MESSAGE_BYTES} bytes")
+    try:
+        msg = json.loads(text)
+    except (ValueError, RecursionError):
+        raise MessageError("not JSON") from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise MessageError('expected an object with a "type"')
+    kind = msg["type"]
+    if kind == "stick":
+        out: dict[str, Any] = {"type": "stick"}
+        for k, lim in STICK_LIMITS.items():
+            v = msg.get(k, 0.0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise MessageError(f"stick.{k} must be a finite number")
+            if abs(v) > 3.0:
+                raise MessageError(f"stick.{k}={v} is out of range (|value| <= 3)")
+            out[k] = max(-lim, min(lim, float(v)))
+        t = msg.get("t_ms")
+        out["t_ms"] = float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t) else None
+        extra = set(msg) - {"type", "t_ms", "seq", *STICK_LIMITS}
+        if extra:
+            raise MessageError(f"unknown stick field(s): {', '.join(sorted(extra))}")
+        return out
+    if kind == "button":
+        b = msg.get("button")
+        if b not in BUTTONS:
+            raise MessageError(f"unknown button {b!r}; one of {', '.join(BUTTONS)}")
+        return {"type": "button", "button": b}
+    if kind in ("take_control", "release_control"):
+        return {"type": kind}
+    raise MessageError(f"unknown message type {kind!r}")
+
+
+def _pct(xs: list[float], q: float) -> float | None:
+    if not xs:
+        return None
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, int(round(q * (len(xs) - 1))))]
+
+
+class _Client:
+    ids = itertools.count(1)
+
+    def __init__(self, ws: Any) -> None:
+        self.id = next(self.ids)
+        self.ws = ws
+        addr = ws.client
+        self.address = f"{addr.host}:{addr.port}" if addr else "?"
+        self.last_stick: tuple | None = None
+
+    @property
+    def name(self) -> str:
+        return f"client #{self.id} ({self.address})"
+
+
+class BaseStation:
+    """The flight (a :class:`RealTimeFlight` over a plant) behind a Starlette app."""
+
+    def __init__(self, flight: RealTimeFlight, inbox: OperatorInbox, config: StationConfig, *,
+                 camera: Any = None, vehicle_name: str = "simulator") -> None:
+        if not is_loopback(config.host) and not config.token:
+            raise ValueError("a token is required to serve on a non-loopback address")
+        self.flight = flight
+        self.inbox = inbox
+        self.cfg = config
+        self.camera = camera
+        self.vehicle_name = vehicle_name
+        self.clients: dict[int, _Client] = {}
+        self.controller: int | None = None
+        self.frames: deque[str] = deque(maxlen=12)
+        self.frames_captured = 0
+        self.refused = 0
+        self._log: IO[str] | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.command_count = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        if self.cfg.command_log is not None:
+            self.cfg.command_log.parent.mkdir(parents=True, exist_ok=True)
+            self._log = self.cfg.command_log.open("a", buffering=1)
+        self._thread = threading.Thread(target=self.flight.run, args=(self._stop,), daemon=True, name="flight")
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        close = getattr(self.flight.plant, "close", None)
+        if close is not None:
+            close()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def log_command(self, client: _Client, command: dict, outcome: str = "ok") -> None:
+        self.command_count += 1
+        if self._log is not None:
+            rec = {"t": _dt.datetime.now().isoformat(timespec="milliseconds"), "client": client.id,
+                   "address": client.address, "command": command, "outcome": outcome}
+            self._log.write(json.dumps(rec) + "\n")
+
+    # ------------------------------------------------------------------ security
+    def token_ok(self, given: str | None) -> bool:
+        if self.cfg.token is None:
+            return True
+        return given is not None and hmac.compare_digest(given.encode(), self.cfg.token.encode())
+
+    @staticmethod
+    def origin_ok(headers: Any) -> bool:
+        origin = headers.get("origin")
+        if origin is None:
+            return True  # not a browser (scripts, tests)
+        host = headers.get("host", "")
+        return origin.split("://", 1)[-1] == host
+
+    # ------------------------------------------------------------------ the app
+    def app(self) -> Any:
+        from starlette.applications import Starlette
+        from starlette.responses import HTMLResponse, PlainTextResponse, Response
+        from starlette.routing import Route, WebSocketRoute
+        from starlette.websockets import WebSocket, WebSocketDisconnect
+
+        static = resources.files("inspect_pipe.flight.base_station") / "static"
+        page = (static / "index.html").read_text()
+        script = (static / "app.js").read_text()
+
+        async def index(request: Any) -> Response:
+            if not self.token_ok(request.query_params.get("token")):
+                return PlainTextResponse("forbidden: this base station needs the token printed at its start (?token=...)", 403)
+            return HTMLResponse(page, headers={"Cache-Control": "no-store"})
+
+        async def app_js(request: Any) -> Response:
+            return Response(script, media_type="application/javascript")
+
+        async def ws_endpoint(ws: WebSocket) -> None:
+            if not self.token_ok(ws.query_params.get("token")) or not self.origin_ok(ws.headers):
+                await ws.close(code=1008)
+                return
+            await ws.accept()
+            client = _Client(ws)
+            self.clients[client.id] = client
+            if self.controller is None:
+                self.controller = client.id
+            self.log_command(client, {"type": "connect"}, self._role(client))
+            await ws.send_text(json.dumps({
+                "type": "hello", "client": client.id, "role": self._role(client), "vehicle": self.vehicle_name,
+                "limits": STICK_LIMITS, "stick_hz": 20,
+            }))
+            try:
+                while True:
+                    raw = await ws.receive()
+                    if raw["type"] == "websocket.disconnect":
+                        break
+                    await self._on_message(client, raw.get("text") if raw.get("text") is not None else raw.get("bytes"))
+            except WebSocketDisconnect:
+                pass
+            finally:
+                self.clients.pop(client.id, None)
+                self.log_command(client, {"type": "disconnect"})
+                if self.controller == client.id:
+                    # No more sticks: onboard, waiting_for_connectivity hovers after 0.25 s.
+                    self.controller = None
+                    await self._broadcast_roles()
+
+        @contextlib.asynccontextmanager
+        async def lifespan(app: Any):
+            self.start()
+            task = asyncio.create_task(self._broadcaster())
+            try:
+                yield
+            finally:
+                task.cancel()
+                self.stop()
+
+        return Starlette(routes=[Route("/", index), Route("/app.js", app_js), WebSocketRoute("/ws", ws_endpoint)], lifespan=lifespan)
+
+    def _role(self, client: _Client) -> str:
+        return "control" if self.controller == client.id else "watch"
+
+    async def _send(self, client: _Client, msg: dict) -> None:
+        try:
+            await client.ws.send_text(json.dumps(msg))
+        except Exception:  # a client gone mid-send: its handler cleans up
+            pass
+
+    async def _broadcast_roles(self) -> None:
+        for c in list(self.clients.values()):
+            await self._send(c, {"type": "role", "role": self._role(c), "controller": self.controller})
+
+    async def _on_message(self, client: _Client, text: Any) -> None:
+        try:
+            msg = parse_client_message(text if text is not None else b"")
+        except MessageError as err:
+            self.refused += 1
+            await self._send(client, {"type": "error", "message": f"ignored: {err}"})
+            return
+        kind = msg["type"]
+        if kind == "take_control":
+            if self.controller is None or self.controller == client.id:
+                self.controller = client.id
+                self.log_command(client, msg)
+                await self._broadcast_roles()
+            else:
+                holder = self.clients.get(self.controller)
+                self.log_command(client, msg, "refused")
+                await self._send(client, {"type": "error", "message":
+                                          f"refused: {holder.name if holder else 'another client'} is in control; "
+                                          "it must release control or close its page"})
+            return
+        if kind == "release_control":
+            if self.controller == client.id:
+                self.controller = None
+                self.log_command(client, msg)
+                await self._broadcast_roles()
+            return
+        if self.controller != client.id:
+            self.refused += 1
+            if kind == "button":
+                self.log_command(client, msg, "refused: watching")
+            await self._send(client, {"type": "error", "message": "refused: you are watching; take control first"})
+            return
+        if kind == "stick":
+            stick = SpeedCommand(msg["vx"], msg["vy"], msg["vz"], msg["yaw_rate"])
+            t_ms = msg["t_ms"]
+            wall = t_ms / 1000.0 if t_ms is not None and abs(t_ms / 1000.0 - time.time()) < 10.0 else None
+            self.inbox.put_stick(stick, wall)
+            key = (stick.vx_m_s, stick.vy_m_s, stick.vz_m_s, stick.yaw_rate_rad_s)
+            if key != client.last_stick:  # the steady stream is not logged, its changes are
+                client.last_stick = key
+                self.log_command(client, {"type": "stick", "vx": key[0], "vy": key[1], "vz": key[2], "yaw_rate": key[3]})
+        else:
+            self.inbox.press(BUTTONS[msg["button"]])
+            self.log_command(client, msg)
+
+    # ------------------------------------------------------------------ outgoing
+    def status(self) -> dict:
+        lat = [x * 1000 for x in list(self.flight.latencies_s)[-1000:]]
+        snap = dict(self.flight.snapshot())
+        snap.update({
+            "type": "state", "controller": self.controller, "clients": len(self.clients),
+            "frames_captured": self.frames_captured,
+            "latency_ms": {"p50": _r1(_pct(lat, 0.5)), "p99": _r1(_pct(lat, 0.99)), "n": len(lat)},
+        })
+        return snap
+
+    async def _broadcaster(self) -> None:
+        period = 1.0 / self.cfg.state_hz
+        image_every = max(1, round(self.cfg.state_hz / self.cfg.image_hz))
+        capture_every = max(1, round(self.cfg.state_hz / self.cfg.capture_hz))
+        loop = asyncio.get_running_loop()
+        next_t = loop.time()
+        k = 0
+        while True:
+            next_t += period
+            k += 1
+            frame_msg = None
+            if self.clients:
+                status = self.status()
+                text = json.dumps(status)
+                image = None
+                if self.camera is not None and k % image_every == 0:
+                    image = self._render()
+                    if image is not None and status.get("inspection_mode") and status.get("fsm") == "flying" and k % capture_every == 0:
+                        self.frames_captured += 1
+                        self.frames.append(image)
+                        frame_msg = json.dumps({"type": "frame", "index": self.frames_captured, "jpeg": image})
+                for c in list(self.clients.values()):
+                    await self._send_raw(c, text)
+                    if image is not None:
+                        await self._send_raw(c, json.dumps({"type": "image", "jpeg": image}))
+                        if frame_msg is not None:
+                            await self._send_raw(c, frame_msg)
+            await asyncio.sleep(max(0.0, next_t - loop.time()))
+
+    async def _send_raw(self, client: _Client, text: str) -> None:
+        try:
+            await client.ws.send_text(text)
+        except Exception:
+            pass
+
+    def _render(self) -> str | None:
+        import cv2
+
+        pose = getattr(self.flight.plant, "pose", None)
+        if pose is None:
+            return None
+        pos, yaw = pose()
+        img = self.camera.render(pos, yaw)
+        if img is None:
+            return None
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 70])
+        return base64.b64encode(buf.tobytes()).decode() if ok else None
+
+
+def _r1(v: float | None) -> float | None:
+    return None if v is None else round(v, 1)
