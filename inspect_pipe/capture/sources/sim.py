@@ -157,8 +157,22 @@ class WallRenderer:
         und = undistort_points(camera, np.stack([xs.ravel(), ys.ravel()], axis=1))
         self._X = np.vstack([und.T, np.ones(und.shape[0])]).astype(np.float64)  # 3 x N undistorted pixels
         r2 = ((xs - (w - 1) / 2) ** 2 + (ys - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
-        self._vignette = (1.0 - params.vignetting * r2).astype(np.float32)[..., None]
+        self._vignette = np.repeat((1.0 - params.vignetting * r2).astype(np.float32)[..., None], 3, axis=2)
+        self._noise_bank: np.ndarray | None = None
         self.T_px_to_wall = texture_px_to_wall(self.m_per_px, self.origin_uv)
+        # Fast path: render the undistorted view with warpPerspective (the homography), then apply
+        # the lens distortion with one fixed remap (precomputed: undistorted pixel of every output pixel).
+        lo = np.floor(und.min(axis=0)) - 2
+        hi = np.ceil(und.max(axis=0)) + 2
+        self._off = lo
+        self._usize = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+        mx = (und[:, 0] - lo[0]).astype(np.float32).reshape(h, w)
+        my = (und[:, 1] - lo[1]).astype(np.float32).reshape(h, w)
+        self._dmap1, self._dmap2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+        self._ucorners = np.array([[lo[0], lo[1], 1], [hi[0], lo[1], 1], [lo[0], hi[1], 1], [hi[0], hi[1], 1]], float).T
+        # the whole wall at 2 cm/px marks what is wall (vs floor, side walls, open top)
+        self._wall_mpp = 0.02
+        self._wall_mask = np.full((max(2, int(round(hold_height_m / 0.02))), max(2, int(round(hold_width_m / 0.02)))), 255, np.uint8)
 
     def homography(self, cam_pose_world: Pose) -> np.ndarray:
         return wall_to_frame_homography(self.camera.K, cam_pose_world.R, cam_pose_world.t, self.L, self.W)
@@ -199,17 +213,51 @@ class WallRenderer:
             return -1.0
         return (self.L - cam.t[0]) / ax[0]
 
+    def _render_undistorted(self, cam: Pose) -> np.ndarray | None:
+        """Float32 BGR albedo of the undistorted view (with margin), or None when part of the view
+        looks away from the wall plane (then the per-pixel path handles it)."""
+        H = self.homography(cam)
+        n_cam = cam.R.T @ np.array([1.0, 0.0, 0.0])
+        rays = np.linalg.inv(self.camera.K) @ self._ucorners
+        if np.any(n_cam @ rays <= 1e-6):
+            return None
+        T_off = np.array([[1.0, 0.0, self._off[0]], [0.0, 1.0, self._off[1]], [0.0, 0.0, 1.0]])
+        wall_from_und = np.linalg.inv(H) @ T_off  # undistorted (offset) pixel -> wall m
+        d_axis = self._axis_distance(cam)
+        s = (d_axis / self.camera.K[0, 0]) / self.m_per_px if d_axis > 0 else 1.0
+        lvl = int(min(len(self.levels) - 1, max(0, math.floor(math.log2(max(s, 1.0))))))
+        f = 2.0 ** lvl
+        u0, v0 = self.origin_uv
+        tex_from_wall = np.array([[1 / (self.m_per_px * f), 0, -u0 / (self.m_per_px * f) - 0.5],
+                                  [0, -1 / (self.m_per_px * f), v0 / (self.m_per_px * f) - 0.5], [0, 0, 1]])
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        img = cv2.warpPerspective(self.levels[lvl], tex_from_wall @ wall_from_und, self._usize, flags=flags,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=tuple(int(c) for c in self.params.paint_bgr))
+        m = self._wall_mpp
+        mask_from_wall = np.array([[1 / m, 0, -0.5], [0, -1 / m, self.Hh / m - 0.5], [0, 0, 1]])
+        mask = cv2.warpPerspective(self._wall_mask, mask_from_wall @ wall_from_und, self._usize,
+                                   flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        img[mask == 0] = self.params.other_bgr
+        return img.astype(np.float32)
+
     def render(self, poses: list[Pose], brightness: float, rng: np.random.Generator) -> tuple[np.ndarray, float]:
         """Average of the sub-exposure poses, with light, vignetting and noise: (uint8 BGR, mean 0..1)."""
-        acc = None
-        for p in poses:
-            im = self._render_one(p)
-            acc = im if acc is None else acc + im
-        img = acc / len(poses) * (brightness * self._vignette)
+        und = [self._render_undistorted(p) for p in poses]
+        if all(u is not None for u in und):
+            acc = und[0] if len(und) == 1 else np.mean(und, axis=0)
+            acc = cv2.remap(acc, self._dmap1, self._dmap2, cv2.INTER_LINEAR)
+        else:
+            acc = np.mean([self._render_one(p) for p in poses], axis=0)
+        img = cv2.multiply(acc.astype(np.float32), self._vignette, scale=float(brightness))
         p = self.params
-        sigma = np.sqrt(p.read_noise_dn ** 2 + p.shot_noise_dn * np.maximum(img, 0.0))
-        img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
-        out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        sigma = cv2.sqrt(cv2.add(cv2.max(img, 0.0) * p.shot_noise_dn, p.read_noise_dn ** 2))
+        n = img.size
+        if self._noise_bank is None:  # unit normals drawn once; each frame reads them from a random offset
+            self._noise_bank = rng.standard_normal(3 * n, dtype=np.float32)
+        k = int(rng.integers(0, 2 * n))
+        noise = self._noise_bank[k:k + n].reshape(img.shape)
+        img = cv2.add(img, cv2.multiply(sigma, noise))
+        out = cv2.convertScaleAbs(cv2.max(img, 0.0))
         return out, float(out.mean()) / 255.0
 
 
