@@ -114,33 +114,44 @@ class MavlinkEndpoint:
         with self._lock:  # several threads send; the sequence number must stay consistent
             self.mav.send(msg)
 
-    def recv(self, timeout_s: float) -> list[Any]:
-        """Messages received within ``timeout_s`` (possibly none), filtered and valid."""
-        if self._sock is not None:
-            self._sock.settimeout(timeout_s)
-            try:
-                data, addr = self._sock.recvfrom(65535)
-            except (socket.timeout, BlockingIOError):
-                return []
-            except OSError:
-                return []
-            if self.peer is not None and addr != self.peer:
-                if not (self.listening and self.peer_system is None):
-                    self.stats.foreign_packets += 1
-                    return []
-        else:
-            data, addr = self._conn.recv(65535) or b"", None
+    def recv(self, timeout_s: float, max_datagrams: int = 64) -> list[Any]:
+        """Messages received within ``timeout_s`` (possibly none), filtered and valid: waits for
+        the first datagram, then takes whatever else is already queued."""
+        out: list[Any] = []
+        if self._sock is None:
+            data = self._conn.recv(65535) or b""
             if not data:
                 time.sleep(min(timeout_s, 0.01))
-                return []
+                return out
+            self._parse(data, None, out)
+            return out
+        self._sock.settimeout(timeout_s)
+        for _ in range(max_datagrams):
+            try:
+                data, addr = self._sock.recvfrom(65535)
+            except (socket.timeout, BlockingIOError, OSError):
+                break
+            self._sock.settimeout(0.0)
+            if self.peer is not None and addr != self.peer and not (self.listening and self.peer_system is None):
+                self.stats.foreign_packets += 1
+                continue
+            self._parse(data, addr, out)
+        return out
+
+    def _parse(self, data: bytes, addr: tuple[str, int] | None, out: list[Any]) -> None:
+        datagram = addr is not None  # a MAVLink frame never spans two UDP datagrams
         try:
             msgs = self.mav.parse_buffer(data) or []
         except Exception:  # pymavlink raises on some malformed frames even when robust
             self.stats.bad_packets += 1
+            msgs = []
+            datagram = True
+        if datagram and self.mav.buf_len() > 0:
+            # A truncated frame must not swallow the next datagram's good frames.
+            self.stats.bad_packets += 1
             self.mav.buf = bytearray()
             self.mav.buf_index = 0
-            return []
-        out = []
+            self.mav.expected_length = self.common.HEADER_LEN_V1 + 2  # the parser's idle state
         for m in msgs:
             if m.get_type() == "BAD_DATA":
                 self.stats.bad_packets += 1
@@ -154,7 +165,6 @@ class MavlinkEndpoint:
                 continue
             self.stats.packets_in += 1
             out.append(m)
-        return out
 
     def close(self) -> None:
         if self._sock is not None:

@@ -251,7 +251,9 @@ class SimulatedAutopilot:
                 if self.spec.flavour is mc.Autopilot.PX4:
                     st.custom_mode = mc.px4_custom_mode(mc.Px4Mode.AUTO, mc.PX4_AUTO_LOITER)
             else:
-                return SpeedCommand(0.0, 0.0, self.spec.takeoff_speed_m_s, 0.0), fresh
+                # Slow down on the way to the target, as a position controller would.
+                vz = min(self.spec.takeoff_speed_m_s, max(0.1, 1.2 * (st.takeoff_alt_m - self.altitude_m)))
+                return SpeedCommand(0.0, 0.0, vz, 0.0), fresh
         if self.in_companion_mode and fresh:
             if self.spec.flavour is mc.Autopilot.ARDUPILOT and self.on_ground:
                 return HOVER, fresh  # ArduCopter needs NAV_TAKEOFF to leave the ground in guided
