@@ -1,0 +1,69 @@
+"""The page in headless Chromium (Debian's /usr/bin/chromium, driven by Playwright): take off,
+push forward with the keyboard towards the wall, read the attenuation message, stop at the stop
+line, land. Screenshots go to ``out/test_screenshots/`` (override: INSPECT_PIPE_SCREENSHOTS)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("starlette", reason="base station needs the [base] extra")
+pytest.importorskip("uvicorn", reason="base station needs the [base] extra")
+sync_api = pytest.importorskip("playwright.sync_api", reason="browser test needs the [browser-test] extra (playwright)")
+
+CHROMIUM = os.environ.get("INSPECT_PIPE_CHROMIUM", "/usr/bin/chromium")
+if not Path(CHROMIUM).exists() and not shutil.which(CHROMIUM):
+    pytest.skip(f"no Chromium at {CHROMIUM} (apt-get install chromium; `make test` does it where apt works)", allow_module_level=True)
+
+from inspect_pipe.flight.base_station import build_station  # noqa: E402
+
+from test_base_station import Served, free_port  # noqa: E402  (tests/flight is on sys.path)
+
+SHOTS = Path(os.environ.get("INSPECT_PIPE_SCREENSHOTS", Path(__file__).resolve().parents[2] / "out" / "test_screenshots"))
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage"]
+
+
+def test_fly_to_the_wall_from_the_browser(tmp_path: Path) -> None:
+    port = free_port()
+    station = build_station(None, port=port, command_log=tmp_path / "commands.jsonl")
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    with Served(station, port), sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 800})
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("document.getElementById('role').textContent === 'in control'", timeout=10_000)
+            state = lambda: page.evaluate("window.basestation.lastState")  # noqa: E731
+            # GIVEN the vehicle landed WHEN the surveyor presses T THEN it takes off.
+            page.keyboard.press("t")
+            page.wait_for_function("window.basestation.lastState && window.basestation.lastState.fsm === 'flying'", timeout=10_000)
+            page.screenshot(path=str(SHOTS / "1_flying.png"))
+            # WHEN W is held towards the wall THEN the page says the speed is attenuated...
+            page.keyboard.down("w")
+            page.wait_for_function("document.getElementById('feedback').textContent.includes('speed attenuated')", timeout=15_000)
+            page.screenshot(path=str(SHOTS / "2_attenuated.png"))
+            # ...and the vehicle stops at the stop line while the key is still held.
+            page.wait_for_function("document.getElementById('feedback').textContent.includes('stop line')", timeout=10_000)
+            time.sleep(1.5)
+            s = state()
+            page.screenshot(path=str(SHOTS / "3_stop_line.png"))
+            page.keyboard.up("w")
+            assert s["user_cmd"]["vx"] == pytest.approx(0.5) and abs(s["cmd"]["vx"]) < 0.1
+            front = s["vehicle"]["dist_true_front"]
+            assert 0.9 <= front <= 1.1, f"stopped {front:.2f} m from the wall"
+            assert s["vehicle"]["collisions"] == 0
+            assert page.evaluate("window.basestation.rateHz") >= 10.0
+            assert page.evaluate("document.getElementById('camera').src").startswith("data:image/jpeg")
+            # WHEN L is pressed THEN it lands.
+            page.keyboard.press("l")
+            page.wait_for_function("window.basestation.lastState.fsm === 'landed'", timeout=15_000)
+            page.screenshot(path=str(SHOTS / "4_landed.png"))
+        finally:
+            browser.close()
+    log = (tmp_path / "commands.jsonl").read_text()
+    assert '"takeoff"' in log and '"land"' in log
