@@ -114,10 +114,10 @@ class ReplaySource:
         """(image, recorded mid-exposure time s, exposure s, record or None)"""
         if self.kind == "video":
             assert self._cap is not None
-            pos_ms = self._cap.get(cv2.CAP_PROP_POS_MSEC)
             ok, img = self._cap.read()
             if not ok or img is None:
                 raise StopIteration
+            pos_ms = self._cap.get(cv2.CAP_PROP_POS_MSEC)  # after read: the time of the frame just read
             t = pos_ms / 1000.0 if pos_ms and pos_ms > 0 else self._i / self._video_fps
             if self._i > 0 and t <= self._last_t:
                 t = self._i / self._video_fps  # containers without usable stamps

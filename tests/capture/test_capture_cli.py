@@ -1,0 +1,68 @@
+"""``inspect-pipe capture``, ``doctor`` and ``fly --sweep``: exit codes and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from cli.main import app
+from inspect_pipe.capture import read_sweep
+
+from .conftest import write_scenario
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_capture_from_the_simulator(tmp_path):
+    sc = write_scenario(tmp_path / "sc", duration_s=4.0)
+    res = run("capture", "--source", f"sim:{sc}", "-o", tmp_path / "sw", "--duration", 2, "--vessel", "MV Test", "--frame-spacing", 0.8)
+    assert res.exit_code == 0, res.output
+    s = read_sweep(tmp_path / "sw")
+    assert len(s.frames) == 20 and s.complete and s.meta.survey["vessel"] == "MV Test" and s.meta.survey["frame_spacing_m"] == 0.8
+    assert "20 frames" in res.output and "drops 0" in res.output
+
+
+def test_fly_writes_the_sweep_of_the_flight(tmp_path):
+    sc = write_scenario(tmp_path / "sc", duration_s=4.0)
+    res = run("fly", "--scenario", sc, "--log", tmp_path / "log.jsonl", "--sweep", tmp_path / "sw")
+    assert res.exit_code == 0, res.output
+    s = read_sweep(tmp_path / "sw")
+    log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()[1:]]
+    assert len(s.frames) == 40 and s.meta.simulation["scenario"] == "tiny_wall"
+    # the frame's true position is the log's, interpolated at mid-exposure
+    f = s.frames[20]
+    k = int(f.t_s * 50)
+    a, b = log[k], log[k + 1]
+    w = (f.t_s - a["t"]) / (b["t"] - a["t"])
+    z = a["pos_true"][2] + w * (b["pos_true"][2] - a["pos_true"][2])
+    assert abs(f.position_true_m[2] - z) < 1e-3
+
+
+def test_bad_source_and_bad_sweeps_are_one_line_exit_2(tmp_path, sweep_copy):
+    res = run("capture", "--source", "webcam", "-o", tmp_path / "x")
+    assert res.exit_code == 2 and res.output.count("\n") == 1 and "--source webcam: unknown source" in res.output
+    res = run("capture", "--source", "v4l2:/dev/video42", "-o", tmp_path / "x")
+    assert res.exit_code == 2 and "/dev/video42: no such device" in res.output and "Traceback" not in res.output
+    # a manifest naming a missing image: the readable part is replayed, then a one-line error
+    (sweep_copy / "images" / "000010.png").unlink()
+    res = run("capture", "--source", f"replay:{sweep_copy}", "-o", tmp_path / "re")
+    assert res.exit_code == 2 and "000010.png" in res.output.splitlines()[-1]
+    assert len(read_sweep(tmp_path / "re").frames) == len(read_sweep(sweep_copy).frames)
+    meta = json.loads((sweep_copy / "sweep.json").read_text())
+    meta["format"] = "inspect_pipe.sweep/9"
+    (sweep_copy / "sweep.json").write_text(json.dumps(meta))
+    res = run("capture", "--source", f"replay:{sweep_copy}", "-o", tmp_path / "re2")
+    assert res.exit_code == 2 and "unknown format version" in res.output and res.output.count("\n") == 1
+    res = run("capture", "--source", f"replay:{sweep_copy}", "-o", sweep_copy)
+    assert res.exit_code == 2
+
+
+def test_doctor_lists_every_backend(tmp_path):
+    res = run("doctor")
+    assert res.exit_code == 0
+    names = [line.split()[2] for line in res.output.splitlines()]
+    assert {"v4l2", "ids", "replay", "sim", "mavlink"} <= set(names)
+    assert all(line[:3] in ("ok ", "no ") for line in res.output.splitlines())
