@@ -62,6 +62,7 @@ def capture(
     frames: Annotated[Optional[int], typer.Option("--frames", help="stop after this many frames")] = None,
     image_format: Annotated[str, typer.Option("--format", help="png (lossless) or jpg")] = "png",
     exposure: Annotated[Optional[float], typer.Option("--exposure", help="manual exposure, s (default: the camera's)")] = None,
+    speed: Annotated[float, typer.Option("--speed", help="replay: play this many times faster than recorded")] = 1.0,
     vessel: Annotated[Optional[str], typer.Option("--vessel", help="survey: vessel name")] = None,
     hold: Annotated[Optional[str], typer.Option("--hold", help="survey: cargo hold")] = None,
     wall: Annotated[Optional[str], typer.Option("--wall", help="survey: wall (e.g. fwd bulkhead)")] = None,
@@ -78,7 +79,9 @@ def capture(
         raise InputError(f"--source {source}", "unknown source", f"one of {SOURCE_SPECS}")
     survey = {k: v for k, v in {"vessel": vessel, "hold": hold, "wall": wall, "frame_spacing_m": frame_spacing,
                                 "reference_frame": reference_frame}.items() if v is not None}
-    src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure)
+    if not (0 < speed <= 1000):
+        raise fail(f"--speed {speed}: must be in (0, 1000]")
+    src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure, speed=speed)
     if time_base == "simulation_s":  # the scenario's camera section sets the simulated camera
         rate = src.scenario.camera.fps if rate == 10.0 else rate
     cfg = CaptureConfig(rate_hz=rate, duration_s=duration, max_frames=frames, image_format=image_format,

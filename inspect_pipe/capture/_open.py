@@ -14,7 +14,7 @@ __all__ = ["Backend", "SOURCE_SPECS", "backends", "open_source"]
 SOURCE_SPECS = "v4l2:/dev/videoN | ids[:SERIAL] | replay:PATH | sim:SCENARIO"
 
 
-def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: float | None = None):
+def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: float | None = None, speed: float = 1.0):
     """(source, clock to run it on, time base). A simulated source runs on its own simulated
     clock, faster than real time; every other source on ``clock``."""
     kind, _, arg = spec.partition(":")
@@ -36,7 +36,7 @@ def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: f
 
         if not arg:
             raise InputError(spec, "no path", "e.g. replay:out/sweep1 or replay:video.mp4")
-        return ReplaySource(arg, clock=clock, rate_hz=rate_hz), clock, "host_monotonic_s"
+        return ReplaySource(arg, clock=clock, rate_hz=rate_hz, speed=speed), clock, "host_monotonic_s"
     if kind == "sim":
         from inspect_pipe.capture.sources.sim import SimSource
         from inspect_pipe.flight import load_scenario
