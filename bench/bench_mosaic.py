@@ -1,0 +1,206 @@
+"""Mosaic benchmark: ours and OpenCV's Stitcher (SCANS) on the same frames, in the same run.
+
+Accuracy needs ground truth: exact for the synthetic sweeps and the Oxford boat pairs, pseudo for the
+NPU drone sequence, none for the Haltbrekken ROV run (placed share and keypoint RMS only).
+Each mosaicer runs in its own process so its wall time and peak memory (ru_maxrss) are its own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+WORK = ROOT / "bench" / "_work" / "mosaic"
+STITCHER_TIMEOUT_S = 900
+
+
+def _run(mode: str, frames: Path, out: Path, focal: float | None = None, timeout: float = 1800) -> dict:
+    cmd = [sys.executable, "-m", "bench._mosaic_worker", mode, str(frames), str(out)]
+    if focal:
+        cmd += ["--focal-px", str(focal)]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    deadline = t0 + timeout
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.perf_counter() > deadline:
+            proc.kill()
+            pid, status, usage = os.wait4(proc.pid, 0)
+            return {"time_s": timeout, "placed": 0, "status": f"timeout after {timeout:.0f} s", "peak_gb": usage.ru_maxrss / 2**20}
+        time.sleep(0.2)
+    out_text = proc.stdout.read().strip().splitlines()
+    res = json.loads(out_text[-1]) if out_text and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0 else {
+        "placed": 0, "status": f"crashed (exit {os.WEXITSTATUS(status) if os.WIFEXITED(status) else 'signal'})"}
+    res["peak_gb"] = usage.ru_maxrss / 2**20
+    res.setdefault("time_s", time.perf_counter() - t0)
+    return res
+
+
+def _mosaic_H(out: Path, group: int | None = 0) -> dict[int, np.ndarray]:
+    doc = json.loads((out / "mosaic.json").read_text())
+    return {f["index"]: np.array(f["H"]) for f in doc["frames"] if group is None or f["group"] == group}
+
+
+def _synthetic(data: Path, name: str, rows: list[str], notes: list[str]) -> None:
+    from inspect_pipe.mosaic.metrics import covered_fraction, global_shape, misalignment, mosaic_ssim
+
+    root = data / "mosaic" / name
+    gt = json.loads((root / "gt.json").read_text())
+    H_gt = {i: np.array(h) for i, h in enumerate(gt["H_frame_to_canvas"])}
+    size = tuple(gt["frame_size_wh"])
+    out = WORK / name
+    shutil.rmtree(out, ignore_errors=True)
+    ours = _run("ours", root / "frames", out, focal=gt["focal_px_for_tilt"])
+    peer = _run("stitcher", root / "frames", WORK / f"{name}_stitcher", timeout=STITCHER_TIMEOUT_S)
+    H = _mosaic_H(out)
+    near, cross = misalignment(H, H_gt, size)
+    shape = global_shape(H, H_gt, size)
+    mosaic = cv2.imread(str(out / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    canvas = cv2.imread(str(root / "canvas.png"), cv2.IMREAD_GRAYSCALE)
+    ssim, _ = mosaic_ssim(mosaic, canvas, shape.similarity)
+    cover = covered_fraction(mosaic, shape.similarity, H_gt, size, tuple(gt["canvas_size_wh"]))
+    n = len(H_gt)
+    rows.append(
+        f"| {name} | {ours['placed']}/{n} ({100 * ours['placed'] / n:.0f} %) | {peer['placed']}/{n}"
+        f"{' (' + str(peer['status']) + ')' if peer.get('status') not in (0, None) else ''} | "
+        f"{ours['time_s']:.1f} s ({1000 * ours['time_s'] / n:.0f} ms/frame) | {peer['time_s']:.1f} s | "
+        f"**{peer['time_s'] / ours['time_s']:.1f}x** | {ours['peak_gb']:.2f} / {peer['peak_gb']:.2f} GB | "
+        f"{near.as_row()} | {cross.as_row()} | {shape.rms_px:.2f} / {shape.max_px:.2f} | {100 * shape.scale_error:+.3f} % | "
+        f"{ssim:.3f} | {100 * cover:.1f} % |"
+    )
+
+
+def _boat(data: Path) -> list[str]:
+    from inspect_pipe.mosaic import MatchParams, detect_features, match_pair
+
+    root = data / "mosaic" / "oxford_boat_gt"
+    img = {k: cv2.imread(str(root / f"img{k}.pgm"), cv2.IMREAD_GRAYSCALE) for k in range(1, 7)}
+    feats = {k: detect_features(v, max_features=4000) for k, v in img.items()}
+    h, w = img[1].shape
+    corners = np.float32([[0, 0], [w, 0], [w, h], [0, h]]).reshape(-1, 1, 2)
+    params = MatchParams(max_scale_change=3.0)  # the boat set zooms by up to 2.5x; sweeps never do
+    out = []
+    for k in range(2, 7):
+        H_gt = np.loadtxt(root / f"H1to{k}p")
+        res = match_pair(1, k, feats[1], feats[k], (w, h), params=params, rng=np.random.default_rng(0))
+        if res:
+            err = np.linalg.norm(cv2.perspectiveTransform(corners, res.H) - cv2.perspectiveTransform(corners, H_gt), axis=2)
+            out.append(f"1-{k}: {err.mean():.2f} px ({res.n_inliers} inliers)")
+        else:
+            out.append(f"1-{k}: rejected ({res.reason})")
+    return out
+
+
+def _npu(data: Path) -> str:
+    from inspect_pipe.mosaic.metrics import misalignment
+
+    root = data / "mosaic" / "npu_phantom3_village_subset"
+    gt = json.loads((root / "gt_pseudo.json").read_text())
+    names = gt["frames"]
+    H_gt = {i: np.array(h) for i, h in enumerate(gt["H_frame_to_canvas"])}
+    out = WORK / "npu"
+    shutil.rmtree(out, ignore_errors=True)
+    ours = _run("ours", root / "rgb", out, focal=1220.0)
+    peer = _run("stitcher", root / "rgb", WORK / "npu_stitcher", timeout=STITCHER_TIMEOUT_S)
+    doc = json.loads((out / "mosaic.json").read_text())
+    assert [f["file"] for f in sorted(doc["frames"] + doc["unplaced"], key=lambda f: f["index"])] == names
+    H = {f["index"]: np.array(f["H"]) for f in doc["frames"]}
+    group = {f["index"]: f["group"] for f in doc["frames"]}
+    near, cross = misalignment(H, H_gt, tuple(gt["frame_size_wh"]), group_of=group, neighbour_gap=1)
+    n = len(names)
+    return (f"| npu_phantom3_village_subset | {ours['placed']}/{n} | {peer['placed']}/{n} {peer.get('status', '')} | "
+            f"{ours['time_s']:.1f} s | {peer['time_s']:.1f} s | **{peer['time_s'] / ours['time_s']:.1f}x** | "
+            f"{ours['peak_gb']:.2f} / {peer['peak_gb']:.2f} GB | neighbours {near.as_row()} px; cross-pass {cross.as_row()} px "
+            f"(RMSE / p95 / max, against pseudo-GT) |")
+
+
+def _rov(data: Path) -> str:
+    root = data / "mosaic" / "haltbrekken_rov_run1" / "left"
+    out = WORK / "rov"
+    shutil.rmtree(out, ignore_errors=True)
+    ours = _run("ours", root, out)
+    peer = _run("stitcher", root, WORK / "rov_stitcher", timeout=STITCHER_TIMEOUT_S)
+    n = ours.get("n", 30)
+    return (f"| haltbrekken_rov_run1 | {ours['placed']}/{n} in groups {ours.get('groups')} | {peer['placed']}/{n} {peer.get('status', '')} | "
+            f"{ours['time_s']:.1f} s | {peer['time_s']:.1f} s | **{peer['time_s'] / ours['time_s']:.1f}x** | "
+            f"{ours['peak_gb']:.2f} / {peer['peak_gb']:.2f} GB | keypoint reprojection RMS {', '.join(f'{r:.2f}' for r in ours.get('rms_px', []))} px |")
+
+
+def _scaling(data: Path) -> list[str]:
+    """Synthetic 752x480 sweeps of 125, 250 and 500 frames over a real corroded-steel photo."""
+    from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame
+
+    wall = cv2.imread(str(data / "walls" / "vt_original_train_16.jpeg"))
+    rows = []
+    for n_frames in (125, 250, 500):
+        per_pass = 50
+        path = SweepPath(passes=n_frames // per_pass if n_frames >= per_pass else 1, per_pass=min(per_pass, n_frames),
+                         step_px=48, row_px=300, frame_wh=(752, 480), margin_px=30, focal_px=650)
+        Hs = lawnmower_homographies(path, np.random.default_rng(n_frames))
+        need_w = int(path.margin_px * 2 + 752 + path.step_px * per_pass + 200)
+        need_h = int(path.margin_px * 2 + 480 + path.row_px * path.passes + 200)
+        big = cv2.resize(wall, (max(need_w, need_h * wall.shape[1] // wall.shape[0]), max(need_h, need_w * wall.shape[0] // wall.shape[1])))
+        folder = WORK / f"scale_{n_frames}"
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        for k, H in enumerate(Hs):
+            cv2.imwrite(str(folder / f"f{k:04d}.jpg"), render_frame(big, H, path.frame_wh), [cv2.IMWRITE_JPEG_QUALITY, 92])
+        res = _run("ours", folder, WORK / f"scale_{n_frames}_out", focal=650)
+        rows.append(f"| {len(Hs)} | {res['placed']} | {res['time_s']:.1f} s | {1000 * res['time_s'] / len(Hs):.0f} ms | {res['peak_gb']:.2f} GB |")
+        shutil.rmtree(folder, ignore_errors=True)
+    return rows
+
+
+def run(data: Path) -> str:
+    WORK.mkdir(parents=True, exist_ok=True)
+    rows: list[str] = []
+    notes: list[str] = []
+    for name in ("synth_rust_sweep", "synth_rust_paint_sweep"):
+        _synthetic(data, name, rows, notes)
+    boat = _boat(data)
+    npu = _npu(data)
+    rov = _rov(data)
+    scaling = _scaling(data)
+    return "\n".join([
+        "## Mosaic (`bench/bench_mosaic.py`)",
+        "",
+        "Ours (`inspect-pipe mosaic`, SIFT, camera focal length given where the data set states it) against OpenCV "
+        f"{cv2.__version__} `cv2.Stitcher` in SCANS mode on the same frames, in the same run. Misalignment: distance in the "
+        "mosaic between the two placements of one wall point seen by two overlapping frames (RMSE / p95 / max, px); "
+        "neighbours are at most 2 frames apart, cross-pass the rest. Global: residual after one similarity to the true wall.",
+        "",
+        "| data set | placed (ours) | placed (Stitcher) | time (ours) | time (Stitcher) | Stitcher / ours time | peak memory ours / Stitcher | neighbour misalignment | cross-pass misalignment | global RMS / max px | scale error | SSIM vs canvas | wall covered |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+        "Goals: misalignment RMSE <= 0.5, p95 <= 1, max <= 3 px; global <= 3 px RMS, <= 10 px max; scale error <= 0.5 %; "
+        ">= 99 % placed on the rusty sweep; >= 70 % of the wall covered on the half-painted one; SSIM >= 0.95; "
+        "<= 60 ms/frame, <= 30 s, <= 1.5 GB on synth_rust_sweep. The Stitcher's own misalignment is not measured "
+        "here (it exposes no frame homographies in SCANS mode).",
+        "",
+        "| real sequence | placed (ours) | placed (Stitcher) | time (ours) | time (Stitcher) | ratio | peak memory | accuracy |",
+        "|---|---|---|---|---|---|---|---|",
+        npu,
+        rov,
+        "",
+        "Oxford boat (real, exact homographies; pairwise registration, mean corner error): " + "; ".join(boat)
+        + ". Goal <= 2 px (pairs within the 2x zoom our sweeps can meet).",
+        "",
+        "Scaling: synthetic lawnmower sweeps of 752x480 frames rendered from a real corroded-steel photo "
+        "(`walls/vt_original_train_16.jpeg`); goal 500 frames in <= 90 s and <= 2 GB, time linear in frames.",
+        "",
+        "| frames | placed | time | per frame | peak memory |",
+        "|---|---|---|---|---|",
+        *scaling,
+    ])
