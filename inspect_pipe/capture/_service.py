@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import enum
 import shutil
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +41,7 @@ class CaptureConfig:
     duration_s: float | None = None
     max_frames: int | None = None
     image_format: str = "png"
-    png_compression: int = 1
+    png_compression: int | None = None  # None: fast lossless (SUB filter, Huffman-only)
     queue_frames: int = 32
     encoders: int = 2
     min_free_bytes: int = 200 * 2**20  # stop cleanly before the disk is full
@@ -168,6 +169,11 @@ def run_capture(
     except BaseException:
         source.close()
         raise
+    # The grabbing thread must get the GIL back within a fraction of a millisecond of its deadline;
+    # Python's default switch interval (5 ms) would show up as timestamp jitter while the writer's
+    # threads run Python code. Restored when the capture ends.
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch, 0.0005))
     sched = None if info.paced else RateScheduler(config.rate_hz, clock)
     t_origin = 0.0 if config.time_base == "simulation_s" else clock.now()
     reason, detail = StopReason.SOURCE_ENDED, ""
@@ -278,6 +284,7 @@ def run_capture(
                    "dropped_source": dropped_source, "skipped_deadlines": sched.skipped_total if sched else 0,
                    "elapsed_s": round(elapsed, 3), "device_to_host_clock": fit}
         stats = writer.close(summary)
+        sys.setswitchinterval(switch)
     if writer.error is not None and reason not in (StopReason.WRITER_FAILED,):
         reason, detail = StopReason.WRITER_FAILED, writer.error
     return CaptureResult(
