@@ -85,7 +85,7 @@ def capture(
     if time_base == "simulation_s":  # the scenario's camera section sets the simulated camera
         rate = src.scenario.camera.fps if rate == 10.0 else rate
     cfg = CaptureConfig(rate_hz=rate, duration_s=duration, max_frames=frames, image_format=image_format,
-                        survey=survey, time_base=time_base)
+                        survey=survey, time_base=time_base, wait_for_writer=time_base == "simulation_s")
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     live = _LiveLine()

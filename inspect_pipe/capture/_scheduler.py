@@ -33,6 +33,10 @@ class RateScheduler:
     def deadline(self, k: int) -> float:
         return self.t0 + k * self.period_s
 
+    @property
+    def next_deadline_s(self) -> float:
+        return self.deadline(self._k)
+
     def wait(self) -> Tick:
         """Sleep until the next deadline and return it."""
         now = self.clock.now()

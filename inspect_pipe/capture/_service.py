@@ -48,6 +48,7 @@ class CaptureConfig:
     survey: dict = field(default_factory=dict)  # vessel, hold, wall, frame_spacing_m, reference_frame
     time_base: str = "host_monotonic_s"  # or "simulation_s" with a simulated clock
     overwrite: bool = False
+    wait_for_writer: bool = False  # simulated time only: wait for the writer instead of dropping
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,7 @@ def run_capture(
                 reason = StopReason.FRAMES
                 break
             if sched is not None:
-                if config.duration_s is not None and sched.deadline(sched._k) - sched.t0 >= config.duration_s - 1e-9:
+                if config.duration_s is not None and sched.next_deadline_s - sched.t0 >= config.duration_s - 1e-9:
                     reason = StopReason.DURATION
                     break
                 tick = sched.wait()
@@ -257,6 +258,8 @@ def run_capture(
                 xmp.update({"position_m": " ".join(f"{v:.4f}" for v in state.position_m), "dist_front_m": record["state"]["dist_front_m"]})
             meta = ImageMeta(make=info.kind, model=info.description[:60], software=f"inspect-pipe {inspect_pipe.__version__}",
                              datetime_utc=utc, exposure_s=g.exposure_s, width=w, height=h, xmp=xmp)
+            if config.wait_for_writer:
+                writer.wait_for_room()
             writer.submit(grabbed, g.image, record, meta)
             grabbed += 1
             if writer.error is not None:

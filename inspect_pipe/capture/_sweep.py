@@ -499,6 +499,15 @@ class SweepWriter:
         self._pending.put((index, name, fut, record))
         return True
 
+    def wait_for_room(self, timeout_s: float = 60.0) -> bool:
+        """Block until a frame would be accepted (for simulated time, which can wait for the disk)."""
+        t_end = time.monotonic() + timeout_s
+        while self._queued >= self.queue_frames and self.error is None:
+            if time.monotonic() > t_end:
+                return False
+            time.sleep(0.001)
+        return True
+
     @property
     def queued(self) -> int:
         return self._queued

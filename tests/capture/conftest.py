@@ -16,8 +16,8 @@ from inspect_pipe.flight import load_scenario
 
 def write_texture(path: Path, w: int = 600, h: int = 400, seed: int = 0) -> Path:
     rng = np.random.default_rng(seed)
-    img = cv2.GaussianBlur(rng.integers(0, 255, (h, w, 3), dtype=np.uint8), (0, 0), 3)
-    img = cv2.normalize(img, None, 20, 235, cv2.NORM_MINMAX)
+    img = cv2.GaussianBlur(rng.standard_normal((h, w, 3)).astype(np.float32), (0, 0), 3)
+    img = np.clip(128 + 45 * img / img.std(), 0, 255).astype(np.uint8)  # contrast like painted, rusty steel
     cv2.imwrite(str(path), img)
     return path
 

@@ -423,5 +423,5 @@ def capture_flight(scenario, trajectory: TrajectoryFeed, sweep_dir: str | Path, 
     clock = ManualClock(0.0)
     src = SimSource(scenario, trajectory=trajectory, clock=clock, params=params)
     cfg = CaptureConfig(rate_hz=scenario.camera.fps, image_format=image_format, time_base="simulation_s",
-                        overwrite=overwrite, queue_frames=10_000)  # simulated time waits for the writer: no drops
+                        overwrite=overwrite, wait_for_writer=True)  # simulated time waits for the writer: no drops
     return run_capture(src, sweep_dir, clock=clock, config=cfg)
