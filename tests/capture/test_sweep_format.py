@@ -210,3 +210,19 @@ def test_simulated_frames_match_the_wall_texture_through_their_truth_homography(
         # and a one-pixel error in the homography would show
         shifted = cv2.GaussianBlur(np.roll(warped, 2, axis=1).astype(np.float32), (0, 0), 1.5)[cover]
         assert np.corrcoef(a, shifted)[0, 1] < np.corrcoef(a, b)[0, 1] - 0.1
+
+
+def test_a_state_feed_gives_each_frame_the_state_at_mid_exposure(tmp_path):
+    # GIVEN telemetry at 50 Hz of a vehicle moving at 1 m/s along x, and a camera exposing 2 ms
+    from inspect_pipe.capture import TrajectoryFeed, VehicleState
+
+    feed = TrajectoryFeed([VehicleState(k * 0.02, (10.0 + k * 0.02, 0.0, 1.0), 2.0 - k * 0.02, 1.0, (1.0, 0.0, 0.0), 1, "flying", True)
+                           for k in range(200)])
+    clock = ManualClock()
+    run_capture(CountingSource(clock, n=20), tmp_path / "sw", clock=clock, config=CaptureConfig(), state_feed=feed)
+    s = read_sweep(tmp_path / "sw")
+    # THEN the position is the one at deadline + exposure / 2, interpolated between telemetry samples
+    for f in s.frames:
+        assert f.position_m[0] == pytest.approx(10.0 + f.t_s, abs=1e-4) and f.t_s == pytest.approx(0.1 * f.index + 0.001)
+        assert f.dist_front_m == pytest.approx(2.0 - f.t_s, abs=1e-4) and f.raw["state"]["t_s"] == pytest.approx(f.t_s)
+        assert f.truth is None and f.position_true_m is None
