@@ -13,7 +13,7 @@ from inspect_pipe.flight.battery import Battery
 from inspect_pipe.flight.geometry import Clearances, HoldGeometry
 from inspect_pipe.flight.operator_link import LinkSpec, OperatorLink
 from inspect_pipe.flight.scenario import VEHICLE_RADIUS_M, FaultKind, Scenario
-from inspect_pipe.flight.sensors import SensorSpecs, SensorSuite
+from inspect_pipe.flight.sensors import NO_FAULTS, SensorFaults, SensorSpecs, SensorSuite
 from inspect_pipe.flight.vehicle_sim import AttitudeFirmware, QuadrotorSim, VehicleModel
 from inspect_pipe.flight_stack.flight_machine import FlightState
 from inspect_pipe.flight_stack.onboard import OnboardStack, TickOutput
@@ -77,6 +77,20 @@ def stack_params_for(scenario: Scenario, params: StackParams | None = None) -> S
     return params.replace(behaviors=dataclasses.replace(params.behaviors, max_height_m=scenario.max_height_m))
 
 
+def _sensor_faults(scenario: Scenario, now: float) -> SensorFaults:
+    active = [f for f in scenario.faults if f.active(now)]
+    if not active:
+        return NO_FAULTS
+    K = FaultKind
+    return SensorFaults(
+        packet_loss={f.sensor: f.rate for f in active if f.kind is K.PACKET_LOSS},
+        stuck=frozenset(f.sensor for f in active if f.kind is K.STUCK_READING),
+        spurious_max_range={f.sensor: f.rate for f in active if f.kind is K.SPURIOUS_MAX_RANGE},
+        range_loss=any(f.kind is K.RANGE_LOSS for f in active),
+        flow_quality_zero=frozenset(f.sensor for f in active if f.kind is K.FLOW_QUALITY_ZERO),
+    )
+
+
 def run_scenario(
     scenario: Scenario,
     *,
@@ -84,14 +98,24 @@ def run_scenario(
     parts: SimParts | None = None,
     on_tick: Callable[[TickRecord], None] | None = None,
     stop_on_collision: bool = True,
+    make_stack: Callable[[StackParams], OnboardStack] = OnboardStack,
 ) -> FlightResult:
-    """Fly ``scenario``; ``on_tick`` receives every :class:`TickRecord` (e.g. a log writer)."""
+    """Fly ``scenario``; ``on_tick`` receives every :class:`TickRecord` (e.g. a log writer).
+
+    ``make_stack`` builds the onboard stack from its parameters (the safety campaign passes
+    stacks whose behaviour arbitration is replaced by a baseline shield)."""
     parts = parts or SimParts()
-    stack = OnboardStack(stack_params_for(scenario, params))
+    v = scenario.vehicle
+    if v.mass_scale != 1.0 or v.thrust_scale != 1.0:  # model error: the stack keeps its nominal hover thrust
+        veh = parts.vehicle
+        parts = dataclasses.replace(parts, vehicle=dataclasses.replace(
+            veh, mass_kg=veh.mass_kg * v.mass_scale,
+            thrust_to_weight=veh.thrust_to_weight * v.thrust_scale / v.mass_scale,
+        ))
+    stack = make_stack(stack_params_for(scenario, params))
     tick_hz = stack.params.control.tick_hz
     substeps = max(1, round(parts.physics_hz / tick_hz))
     physics_hz = substeps * tick_hz
-    v = scenario.vehicle
     sim = QuadrotorSim(
         scenario.world, v.start_position_m, v.start_yaw_rad, vehicle=parts.vehicle, firmware=parts.firmware,
         physics_hz=physics_hz, seed=scenario.seed,
@@ -101,6 +125,9 @@ def run_scenario(
     battery = Battery(v.battery)
     geometry = HoldGeometry(scenario.world)
     dropouts = [f for f in scenario.faults if f.kind is FaultKind.SENSOR_DROPOUT]
+    sensor_faults = [f for f in scenario.faults if f.kind not in (FaultKind.SENSOR_DROPOUT, FaultKind.LINK_LOSS)]
+    sags = [f for f in scenario.faults if f.kind is FaultKind.BATTERY_SAG]
+    gusts = [f for f in scenario.faults if f.kind is FaultKind.GUST]
     hover = stack.params.control.hover_thrust_frac
 
     n_ticks = int(round(scenario.duration_s * tick_hz))
@@ -115,8 +142,10 @@ def run_scenario(
         link.advance(now)
         operator = link.receive(now)
         meas = sensors.read(now, sim)
+        sag = sum(f.rate for f in sags if f.active(now))  # type: ignore[misc]
+        battery_reading = max(0.0, battery.percent - 100.0 * sag)  # voltage sag reads as charge lost
         c0 = time.perf_counter()
-        out = stack.tick(now, meas, operator, battery.percent)
+        out = stack.tick(now, meas, operator, battery_reading)
         tick_seconds.append(time.perf_counter() - c0)
         sim.set_setpoint(out.setpoint)
 
@@ -144,7 +173,17 @@ def run_scenario(
         if k == n_ticks:
             break
         dropped = frozenset(f.sensor for f in dropouts if f.active(now))  # type: ignore[misc]
-        sim.step(substeps, lambda s: sensors.sample(s, dropped))  # type: ignore[arg-type]
+        if sensor_faults:
+            sim.thrust_available = max(0.0, 1.0 - sag)
+            wind = [0.0, 0.0, 0.0]
+            for f in gusts:
+                if f.active(now):
+                    wind = [w + g for w, g in zip(wind, f.wind_m_s)]  # type: ignore[arg-type]
+            sim.wind_m_s = tuple(wind)  # type: ignore[assignment]
+            faults = _sensor_faults(scenario, now)
+            sim.step(substeps, lambda s: sensors.sample(s, dropped, faults))  # type: ignore[arg-type]
+        else:
+            sim.step(substeps, lambda s: sensors.sample(s, dropped))  # type: ignore[arg-type]
         battery.drain(tick_dt, sim.thrust_n / (hover * parts.vehicle.max_thrust_n))
     return FlightResult(
         status=status,

@@ -48,8 +48,21 @@ class SensorName(str, enum.Enum):
 
 
 class FaultKind(str, enum.Enum):
-    SENSOR_DROPOUT = "sensor_dropout"
+    SENSOR_DROPOUT = "sensor_dropout"  # blackout: the sensor delivers nothing
     LINK_LOSS = "link_loss"
+    PACKET_LOSS = "packet_loss"  # each sample of the sensor lost with probability ``rate``
+    STUCK_READING = "stuck_reading"  # the sensor repeats its last value, freshly stamped
+    SPURIOUS_MAX_RANGE = "spurious_max_range"  # range sensor: max-range echo at grazing incidence, prob. ``rate``
+    RANGE_LOSS = "range_loss"  # every range sensor silent (PX4Flow units lose their metric scale)
+    FLOW_QUALITY_ZERO = "flow_quality_zero"  # PX4Flow quality 0 (texture-less surface); its sonar still works
+    BATTERY_SAG = "battery_sag"  # ``rate``: fraction of thrust lost, and of the charge reading
+    GUST = "gust"  # wind of ``wind_m_s`` (world frame) acting through the rotor drag
+
+
+# Which fields a fault kind needs: sensor, rate (0..1), wind vector.
+_NEEDS_SENSOR = {FaultKind.SENSOR_DROPOUT, FaultKind.PACKET_LOSS, FaultKind.STUCK_READING,
+                 FaultKind.SPURIOUS_MAX_RANGE, FaultKind.FLOW_QUALITY_ZERO}
+_NEEDS_RATE = {FaultKind.PACKET_LOSS, FaultKind.SPURIOUS_MAX_RANGE, FaultKind.BATTERY_SAG}
 
 
 @dataclass(frozen=True)
@@ -94,6 +107,8 @@ class VehicleSpec:
     start_yaw_rad: float = 0.0
     battery: Battery = Battery()
     max_height_m: float | None = None  # limit_max_height; default from the hold
+    mass_scale: float = 1.0  # true mass / nominal (model error the stack does not know)
+    thrust_scale: float = 1.0  # true maximum thrust / nominal
 
 
 @dataclass(frozen=True)
@@ -122,6 +137,8 @@ class Fault:
     duration_s: float
     kind: FaultKind
     sensor: SensorName | None = None
+    rate: float | None = None  # packet_loss, spurious_max_range: probability; battery_sag: fraction
+    wind_m_s: tuple[float, float, float] | None = None  # gust
 
     def active(self, t: float) -> bool:
         return self.t_s <= t < self.t_s + self.duration_s
@@ -272,7 +289,7 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
         )
     world = World(hold, tuple(boxes), texture)
 
-    v = r.mapping(top["vehicle"], "vehicle", {"start", "battery", "max_height_m"}, {"start"})
+    v = r.mapping(top["vehicle"], "vehicle", {"start", "battery", "max_height_m", "mass_scale", "thrust_scale"}, {"start"})
     s = r.mapping(v["start"], "vehicle.start", {"position", "yaw"}, {"position"})
     pos = r.vector(s["position"], "vehicle.start.position", 3)
     yaw = r.number(s.get("yaw", 0.0), "vehicle.start.yaw", lo=-2 * math.pi, hi=2 * math.pi)
@@ -285,7 +302,11 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
     max_h = None
     if v.get("max_height_m") is not None:
         max_h = r.number(v["max_height_m"], "vehicle.max_height_m", lo=1.0, hi=min(14.0, hold.height_m))
-    vehicle = VehicleSpec(pos, yaw, battery, max_h)  # type: ignore[arg-type]
+    vehicle = VehicleSpec(
+        pos, yaw, battery, max_h,  # type: ignore[arg-type]
+        mass_scale=r.number(v.get("mass_scale", 1.0), "vehicle.mass_scale", lo=0.5, hi=1.5),
+        thrust_scale=r.number(v.get("thrust_scale", 1.0), "vehicle.thrust_scale", lo=0.5, hi=1.5),
+    )
 
     camera = Camera()
     if top.get("camera") is not None:
@@ -331,17 +352,38 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
         raise r.fail("faults", f"is {type(raw_faults).__name__}", "a list of {t, duration_s, fault[, sensor]}")
     for i, fl in enumerate(raw_faults):
         f = f"faults[{i}]"
-        fl = r.mapping(fl, f, {"t", "duration_s", "fault", "sensor"}, {"t", "duration_s", "fault"})
+        fl = r.mapping(fl, f, {"t", "duration_s", "fault", "sensor", "rate", "wind_m_s"}, {"t", "duration_s", "fault"})
         kind = r.enum(fl["fault"], f + ".fault", FaultKind)
-        sensor = None
-        if kind is FaultKind.SENSOR_DROPOUT:
+        sensor = rate = wind = None
+        if kind in _NEEDS_SENSOR:
             if "sensor" not in fl:
                 raise r.fail(f + ".sensor", "missing", "one of " + ", ".join(s.value for s in SensorName))
             sensor = r.enum(fl["sensor"], f + ".sensor", SensorName)
+            if kind is FaultKind.FLOW_QUALITY_ZERO and sensor not in (SensorName.BOTTOM_FLOW, SensorName.FRONT_FLOW):
+                raise r.fail(f + ".sensor", f"{sensor.value} has no flow", "bottom_flow or front_flow")
+            if kind is FaultKind.SPURIOUS_MAX_RANGE and sensor is SensorName.BOTTOM_TOF:
+                raise r.fail(f + ".sensor", "the TeraRanger is not a sonar", "a sonar: bottom_flow, front_flow, left_sonar, right_sonar")
         elif "sensor" in fl:
-            raise r.fail(f + ".sensor", "only sensor_dropout names a sensor", "no 'sensor' for link_loss")
+            raise r.fail(f + ".sensor", f"{kind.value} names no sensor", "no 'sensor' field")
+        if kind in _NEEDS_RATE:
+            if "rate" not in fl:
+                raise r.fail(f + ".rate", "missing", "a number in [0, 1]")
+            rate = r.number(fl["rate"], f + ".rate", lo=0.0, hi=1.0)
+        elif "rate" in fl:
+            raise r.fail(f + ".rate", f"{kind.value} takes no rate", "no 'rate' field")
+        if kind is FaultKind.GUST:
+            if "wind_m_s" not in fl:
+                raise r.fail(f + ".wind_m_s", "missing", "[wx, wy, wz] in m/s")
+            wind = r.vector(fl["wind_m_s"], f + ".wind_m_s", 3)
+            if math.hypot(*wind) > 10.0:
+                raise r.fail(f + ".wind_m_s", f"{list(wind)} is stronger than 10 m/s", "a gust of at most 10 m/s")
+        elif "wind_m_s" in fl:
+            raise r.fail(f + ".wind_m_s", f"{kind.value} takes no wind", "no 'wind_m_s' field")
         faults.append(
-            Fault(r.number(fl["t"], f + ".t", lo=0.0), r.number(fl["duration_s"], f + ".duration_s", positive=True), kind, sensor)
+            Fault(
+                r.number(fl["t"], f + ".t", lo=0.0), r.number(fl["duration_s"], f + ".duration_s", positive=True),
+                kind, sensor, rate, wind,  # type: ignore[arg-type]
+            )
         )
     return Scenario(
         name=top["name"], duration_s=duration, seed=seed, world=world, vehicle=vehicle, camera=camera,

@@ -8,7 +8,10 @@
 * The autopilot's IMU: mean acceleration per control tick, with noise and a residual bias.
 
 A reading is delivered at ``sample time + latency`` and stamped with its delivery time (what the
-onboard computer sees). A sensor under a ``sensor_dropout`` fault delivers nothing.
+onboard computer sees). A sensor under a ``sensor_dropout`` fault delivers nothing; the other
+sensor faults of the scenario format (packet loss, stuck readings, spurious max-range echoes at
+grazing incidence, loss of every range sensor, flow quality zero) come in as :class:`SensorFaults`
+and draw their randomness from a generator of their own, so a flight without them is unchanged.
 """
 
 from __future__ import annotations
@@ -16,13 +19,14 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 from inspect_pipe.flight.scenario import SensorName
 from inspect_pipe.flight.vehicle_sim import QuadrotorSim
 from inspect_pipe.flight_stack.messages import BottomFlow, FrontFlow, ImuReading, Measurements, RangeReading
 
-__all__ = ["FlowSpec", "RangeSpec", "SensorSuite", "SensorSpecs"]
+__all__ = ["FlowSpec", "RangeSpec", "SensorFaults", "SensorSuite", "SensorSpecs"]
 
 
 @dataclass(frozen=True)
@@ -57,12 +61,31 @@ class SensorSpecs:
     imu: ImuSpec = ImuSpec()
     sonar: RangeSpec = RangeSpec(10.0, 0.05, 0.3, 5.0, 0.005, 0.002)
     tof: RangeSpec = RangeSpec(100.0, 0.01, 0.2, 14.0, 0.02)
+    grazing_deg: float = 35.0  # incidence from the surface normal beyond which a sonar may miss its echo
+
+
+@dataclass(frozen=True)
+class SensorFaults:
+    """Sensor faults active during one physics step (besides ``dropped`` sensors)."""
+
+    packet_loss: dict = field(default_factory=dict)  # SensorName -> probability a sample is lost
+    stuck: frozenset = frozenset()  # SensorName: repeats its last reading
+    spurious_max_range: dict = field(default_factory=dict)  # SensorName -> probability at grazing incidence
+    range_loss: bool = False  # every range sensor silent
+    flow_quality_zero: frozenset = frozenset()  # SensorName (bottom_flow, front_flow)
+
+    def any(self) -> bool:
+        return bool(self.packet_loss or self.stuck or self.spurious_max_range or self.range_loss or self.flow_quality_zero)
+
+
+NO_FAULTS = SensorFaults()
+_RANGE_CHANNELS = frozenset({"bottom_sonar", "front_sonar", "left_sonar", "right_sonar", "bottom_tof"})
 
 
 class _Channel:
     """One periodic sensor output with a delivery queue."""
 
-    __slots__ = ("period", "latency", "next_t", "queue", "latest")
+    __slots__ = ("period", "latency", "next_t", "queue", "latest", "last_value")
 
     def __init__(self, rate_hz: float, latency_s: float, phase: float) -> None:
         self.period = 1.0 / rate_hz
@@ -70,6 +93,7 @@ class _Channel:
         self.next_t = phase * self.period
         self.queue: deque = deque()
         self.latest = None
+        self.last_value = None  # the last value sampled (a stuck sensor repeats it)
 
     def deliver(self, now: float) -> None:
         q = self.queue
@@ -107,6 +131,8 @@ class SensorSuite:
             "left_sonar": SensorName.LEFT_SONAR, "right_sonar": SensorName.RIGHT_SONAR,
             "bottom_tof": SensorName.BOTTOM_TOF,
         }
+        self.fault_rng = random.Random(seed * 15485863 + 17)  # only faults draw from it
+        self._faults = NO_FAULTS
         self._dirs = {
             "bottom_sonar": (0.0, 0.0, -1.0), "bottom_tof": (0.0, 0.0, -1.0), "front_sonar": (1.0, 0.0, 0.0),
             "left_sonar": (0.0, 1.0, 0.0), "right_sonar": (0.0, -1.0, 0.0),
@@ -136,23 +162,33 @@ class SensorSuite:
         noisy = true_m + self.rng.gauss(0.0, spec.noise_m + spec.noise_per_m * true_m)
         return max(spec.min_range_m, round(noisy, 3))  # the HRLV reports its minimum when closer
 
-    def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName]) -> None:
+    def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName], faults: SensorFaults = NO_FAULTS) -> None:
         t = sim.t
         if t + 1e-9 < self._next_due:
             return
+        self._faults = faults
         pos = None
         for name, ch in self.ch.items():
             if t + 1e-9 < ch.next_t:
                 continue
             ch.next_t += ch.period
-            if self._owner[name] in dropped:
-                if name.endswith("flow"):
-                    self._px_range[name] = None
+            owner = self._owner[name]
+            if owner in dropped or (faults.range_loss and name in _RANGE_CHANNELS):
+                if name.endswith("flow") or (faults.range_loss and name in ("bottom_sonar", "front_sonar")):
+                    self._px_range[name.replace("sonar", "flow")] = None
                 continue
+            stamp = t + ch.latency  # delivery time: what the onboard clock stamps
+            if faults.any():
+                if owner in faults.packet_loss and self.fault_rng.random() < faults.packet_loss[owner]:
+                    continue
+                if owner in faults.stuck and ch.last_value is not None:
+                    ch.queue.append((stamp, dataclasses.replace(ch.last_value, stamp_s=stamp)))
+                    continue
             if pos is None:
                 pos = sim.position
-            stamp = t + ch.latency  # delivery time: what the onboard clock stamps
-            ch.queue.append((stamp, self._measure(name, sim, pos, stamp)))
+            value = self._measure(name, sim, pos, stamp)
+            ch.last_value = value
+            ch.queue.append((stamp, value))
         self._next_due = min(ch.next_t for ch in self.ch.values())
 
     def _measure(self, name: str, sim: QuadrotorSim, pos, stamp: float):
@@ -160,6 +196,10 @@ class SensorSuite:
         if name in self._dirs:
             spec = s.tof if name == "bottom_tof" else s.sonar
             rng = self._range(spec, sim.ray(pos, self._dirs[name]))
+            spurious = self._faults.spurious_max_range.get(self._owner[name]) if name != "bottom_tof" else None
+            if spurious and rng is not None and sim.incidence_rad() > math.radians(s.grazing_deg):
+                if self.fault_rng.random() < spurious:
+                    rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
             if name == "bottom_sonar":
                 self._px_range["bottom_flow"] = rng
             elif name == "front_sonar":
@@ -179,6 +219,8 @@ class SensorSuite:
         else:
             sigma, quality = fl.noise_m_s + fl.noise_per_m * scale_range, fl.quality + int(g(0.0, 15.0))
         quality = max(0, min(255, quality))
+        if self._faults.flow_quality_zero and self._owner[name] in self._faults.flow_quality_zero:
+            quality = 0
         if sigma == 0.0:
             a = b = 0.0  # no metric scale without an echo
         elif name == "bottom_flow":

@@ -136,6 +136,11 @@ class QuadrotorSim:
         self._ray_pnt = np.zeros(3)
         self._geomid = np.zeros(1, dtype=np.int32)
         self._xfrc = self.data.xfrc_applied[self.body]
+        self._last_incidence = 0.0
+        # Faults the scenario injects: wind (world frame, m/s) seen through the rotor drag, and
+        # the share of maximum thrust still available (battery sag).
+        self.wind_m_s = (0.0, 0.0, 0.0)
+        self.thrust_available = 1.0
 
     # ------------------------------------------------------------------ state
     @property
@@ -190,7 +195,8 @@ class QuadrotorSim:
         sp = self.setpoint
         roll_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.roll_rad))
         pitch_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.pitch_rad))
-        thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax
+        thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax * self.thrust_available
+        wx, wy, wz = self.wind_m_s
         armed = thrust_sp > 0.0 or self.thrust_n > 0.01
         for _ in range(n):
             w, x, y, z = qpos[3:7].tolist()
@@ -198,6 +204,7 @@ class QuadrotorSim:
             pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
             yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
             vx, vy, vz, p, q, r = qvel.tolist()
+            vx, vy, vz = vx - wx, vy - wy, vz - wz  # air-relative: drag pushes towards the wind
             self.thrust_n += alpha * (thrust_sp - self.thrust_n)
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             cd = c1 + c2 * speed
@@ -237,4 +244,15 @@ class QuadrotorSim:
         pnt = self._ray_pnt
         pnt[0], pnt[1], pnt[2] = origin
         dist = mujoco.mj_ray(self.model, self.data, pnt, v, None, True, self.body, self._geomid)
-        return None if dist < 0 else float(dist)
+        if dist < 0:
+            return None
+        # Incidence from the hit face's normal (every surface is an axis-aligned box).
+        g = int(self._geomid[0])
+        c, half = self.model.geom_pos[g], self.model.geom_size[g]
+        k = max(range(3), key=lambda i: abs(pnt[i] + dist * v[i] - c[i]) / half[i])
+        self._last_incidence = math.acos(min(1.0, abs(float(v[k]))))
+        return float(dist)
+
+    def incidence_rad(self) -> float:
+        """Angle between the last ray that hit and the normal of the surface it hit (rad)."""
+        return self._last_incidence

@@ -1,0 +1,284 @@
+"""Per-episode safety metrics, measured on ground truth tick by tick (``EpisodeMonitor``), and
+their aggregation per shield.
+
+Definitions (all distances from the vehicle's centre unless said otherwise):
+
+* clearance from the rotor envelope: distance to the nearest wall or box minus 0.27 m (arm 0.17 m
+  + rotor 0.1 m), over the airborne part of the flight;
+* overshoot: how far inside the 1 m stop line the vehicle came (front, left and right walls and
+  boxes, along the world axes), over ticks with no fault active in the last second;
+* dithering: sign changes of the speed along a wall's normal (hysteresis 0.03 m/s) while the
+  operator pushes into that wall within 1.3 m of it;
+* stuck: an escape the operator asked for (sideways out of a corner or along a wall) made less
+  than 0.3 m of progress, with no fault active meanwhile;
+* stale-sector block time: from the start of a blackout of the sensor that sees the sector the
+  operator pushes into, until the command into that sector is <= 0.05 m/s (never: the blackout's
+  duration, counted as unblocked);
+* link-loss hover time: from the start of a link loss (>= 0.5 s, stick off-centre, flying) to
+  the first horizontal command <= 0.01 m/s; drift: horizontal displacement from then until the
+  link is back (at most 10 s);
+* altitude excursion over floor steps: largest |z - z before the step| within 3 s after the
+  surface below changes by > 0.25 m, with the stick's vertical speed zero;
+* false "landed": the flight machine says landed while the true height above the surface below
+  exceeds 0.3 m.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass, field
+
+from inspect_pipe.campaign.generator import EpisodeSpec
+from inspect_pipe.flight.geometry import HoldGeometry
+from inspect_pipe.flight.runner import TickRecord
+from inspect_pipe.flight.scenario import FaultKind, Scenario, SensorName
+from inspect_pipe.flight_stack.flight_machine import FlightState
+
+__all__ = ["EpisodeMonitor", "EpisodeResult", "aggregate", "ROTOR_ENVELOPE_M", "STOP_LINE_M"]
+
+ROTOR_ENVELOPE_M = 0.27
+STOP_LINE_M = 1.0
+LEG_HEIGHT_M = 0.08
+_SECTOR_OF_SENSOR = {SensorName.FRONT_FLOW: (1.0, 0.0), SensorName.LEFT_SONAR: (0.0, 1.0), SensorName.RIGHT_SONAR: (0.0, -1.0)}
+
+
+@dataclass
+class EpisodeResult:
+    index: int
+    shield: str
+    name: str
+    kind: str
+    subsets: tuple[str, ...]
+    collided: bool = False
+    collided_at_s: float | None = None
+    min_clearance_m: float = math.inf
+    overshoot_m: float | None = None
+    dither_changes: int = 0
+    dither_held_s: float = 0.0
+    stuck: bool = False
+    stale_block_s: list[float] = field(default_factory=list)
+    stale_unblocked: int = 0
+    link_hover_s: list[float] = field(default_factory=list)
+    link_drift_m: list[float] = field(default_factory=list)
+    altitude_excursion_m: float | None = None
+    false_landed: bool = False
+    sim_s: float = 0.0
+    wall_s: float = 0.0
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["subsets"] = list(self.subsets)
+        if math.isinf(d["min_clearance_m"]):
+            d["min_clearance_m"] = None
+        return d
+
+
+class EpisodeMonitor:
+    """Call with every :class:`TickRecord` of one flight; ``finish()`` returns the result."""
+
+    def __init__(self, spec: EpisodeSpec, scenario: Scenario, shield: str) -> None:
+        self.spec, self.sc = spec, scenario
+        self.geo = HoldGeometry(scenario.world)
+        self.res = EpisodeResult(spec.index, shield, spec.name, spec.kind, spec.subsets)
+        self.faults = [f for f in scenario.faults]
+        self._fault_end = [f.t_s + f.duration_s for f in self.faults]
+        self._dt = 0.02
+        self._prev_sign: dict[int, int] = {}
+        self._prev_down: float | None = None
+        self._z_hist: deque = deque(maxlen=20)
+        self._step: tuple[float, float] | None = None  # (t of step, z reference)
+        self._escape_start: dict[int, tuple[float, float]] = {}
+        self._escape_bad: set[int] = set()
+        self._stale: dict[int, float | None] = {}  # fault index -> block time or None (pending)
+        self._link: dict[int, dict] = {}
+
+    def _fault_recent(self, t: float, within_s: float = 1.0) -> bool:
+        return any(f.t_s <= t <= end + within_s for f, end in zip(self.faults, self._fault_end))
+
+    def __call__(self, rec: TickRecord) -> None:
+        r, t = self.res, rec.t
+        x, y, z = rec.pos_true
+        out = rec.out
+        airborne = out.fsm is not FlightState.LANDED and z - LEG_HEIGHT_M > 0.05
+        yaw = rec.yaw_true
+        c, s = math.cos(yaw), math.sin(yaw)
+        u = out.user_cmd
+        stick_w = (c * u.vx_m_s - s * u.vy_m_s, s * u.vx_m_s + c * u.vy_m_s)
+        cmd = out.command
+        cmd_w = (c * cmd.vx_m_s - s * cmd.vy_m_s, s * cmd.vx_m_s + c * cmd.vy_m_s)
+        if rec.collided and not r.collided:
+            r.collided, r.collided_at_s = True, t
+        if airborne:
+            r.min_clearance_m = min(r.min_clearance_m, self.geo.wall_distance(x, y, z) - ROTOR_ENVELOPE_M)
+        d = rec.dist_true
+        flying = out.fsm is FlightState.FLYING
+        if flying and not self._fault_recent(t):
+            near = min(d.front, d.left, d.right)
+            over = STOP_LINE_M - near
+            r.overshoot_m = max(r.overshoot_m if r.overshoot_m is not None else 0.0, over, 0.0)
+        if flying:
+            self._dither(rec, stick_w, (d.front, d.left, d.right))
+            self._stale_sectors(t, stick_w, cmd_w)
+            self._link_loss(t, rec, stick_w)
+            self._escapes(t, x, y)
+            self._floor_steps(t, z, d.down, u.vz_m_s)
+        if out.fsm is FlightState.LANDED and d.down - LEG_HEIGHT_M > 0.3:
+            r.false_landed = True
+        r.sim_s = t
+
+    # ------------------------------------------------------------------ the metrics
+    def _dither(self, rec, stick_w, dists) -> None:
+        vx, vy = rec.vel_true[0], rec.vel_true[1]
+        for k, (nx, ny) in enumerate(((1.0, 0.0), (0.0, 1.0), (0.0, -1.0))):
+            pushing = stick_w[0] * nx + stick_w[1] * ny > 0.05 and dists[k] < STOP_LINE_M + 0.3
+            if not pushing:
+                self._prev_sign.pop(k, None)
+                continue
+            self.res.dither_held_s += self._dt
+            v = vx * nx + vy * ny
+            if abs(v) < 0.03:
+                continue
+            sign = 1 if v > 0 else -1
+            prev = self._prev_sign.get(k)
+            if prev is not None and prev != sign:
+                self.res.dither_changes += 1
+            self._prev_sign[k] = sign
+
+    def _stale_sectors(self, t, stick_w, cmd_w) -> None:
+        for i, f in enumerate(self.faults):
+            if f.kind is FaultKind.SENSOR_DROPOUT and f.sensor in _SECTOR_OF_SENSOR:
+                sectors = [_SECTOR_OF_SENSOR[f.sensor]]
+            elif f.kind is FaultKind.RANGE_LOSS:
+                sectors = list(_SECTOR_OF_SENSOR.values())
+            else:
+                continue
+            if not f.active(t):
+                if i in self._stale and self._stale[i] is None:
+                    self._stale[i] = math.inf  # ended unblocked
+                continue
+            for nx, ny in sectors:
+                into_stick = stick_w[0] * nx + stick_w[1] * ny
+                if into_stick <= 0.1:
+                    continue
+                if i not in self._stale:
+                    self._stale[i] = None
+                if self._stale[i] is None and cmd_w[0] * nx + cmd_w[1] * ny <= 0.05:
+                    self._stale[i] = t - f.t_s
+
+    def _link_loss(self, t, rec, stick_w) -> None:
+        for i, f in enumerate(self.faults):
+            if f.kind is not FaultKind.LINK_LOSS or f.duration_s < 0.5:
+                continue
+            st = self._link.get(i)
+            if st is None:
+                if f.t_s <= t < f.t_s + 0.03:
+                    if math.hypot(*stick_w) > 0.05:
+                        self._link[i] = {"t0": f.t_s, "hover_t": None, "pos": None, "drift": 0.0}
+                continue
+            if t > f.t_s + f.duration_s:
+                continue
+            cmd = rec.out.command
+            if st["hover_t"] is None:
+                if abs(cmd.vx_m_s) <= 0.01 and abs(cmd.vy_m_s) <= 0.01:
+                    st["hover_t"], st["pos"] = t, rec.pos_true[:2]
+            elif t - st["hover_t"] <= 10.0:
+                p0 = st["pos"]
+                st["drift"] = max(st["drift"], math.hypot(rec.pos_true[0] - p0[0], rec.pos_true[1] - p0[1]))
+
+    def _escapes(self, t, x, y) -> None:
+        for i, e in enumerate(self.spec.escapes):
+            if e.t0_s <= t <= e.t1_s:
+                self._escape_start.setdefault(i, (x, y))
+                if self._fault_recent(t, 0.5):
+                    self._escape_bad.add(i)
+            elif t > e.t1_s and i in self._escape_start and i not in self._escape_bad:
+                x0, y0 = self._escape_start[i]
+                progress = (x - x0) * e.direction[0] + (y - y0) * e.direction[1]
+                if progress < e.min_progress_m:
+                    self.res.stuck = True
+                self._escape_bad.add(i)  # evaluated once
+
+    def _floor_steps(self, t, z, down, vz_stick) -> None:
+        self._z_hist.append(z)
+        prev, self._prev_down = self._prev_down, down
+        if prev is not None and abs(down - prev) > 0.25 and vz_stick == 0.0 and self._step is None:
+            self._step = (t, self._z_hist[0])
+        if self._step is not None:
+            t0, zref = self._step
+            if t - t0 > 3.0 or vz_stick != 0.0:
+                self._step = None
+            else:
+                r = self.res
+                r.altitude_excursion_m = max(r.altitude_excursion_m or 0.0, abs(z - zref))
+
+    def finish(self, wall_s: float) -> EpisodeResult:
+        r = self.res
+        for v in self._stale.values():
+            if v is None or math.isinf(v):
+                r.stale_unblocked += 1
+            else:
+                r.stale_block_s.append(round(v, 3))
+        for st in self._link.values():
+            if st["hover_t"] is not None:
+                r.link_hover_s.append(round(st["hover_t"] - st["t0"], 3))
+                r.link_drift_m.append(round(st["drift"], 3))
+        r.wall_s = wall_s
+        return r
+
+
+def _pct(xs: list[float], q: float) -> float | None:
+    if not xs:
+        return None
+    xs = sorted(xs)
+    k = (len(xs) - 1) * q
+    lo, hi = math.floor(k), math.ceil(k)
+    return xs[lo] + (xs[hi] - xs[lo]) * (k - lo)
+
+
+def _rnd(x: float | None, nd: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, nd)
+
+
+def aggregate(results: list[EpisodeResult]) -> dict:
+    """Summary of one shield's episodes (the SPEC's required keys and more)."""
+    n = len(results)
+    collisions = [r for r in results if r.collided]
+    clear = [r.min_clearance_m for r in results if math.isfinite(r.min_clearance_m)]
+    over = [r.overshoot_m for r in results if r.overshoot_m is not None and not r.collided]
+    dither = [10.0 * r.dither_changes / r.dither_held_s for r in results if r.dither_held_s >= 2.0]
+    stale = [s for r in results for s in r.stale_block_s]
+    hover = [s for r in results for s in r.link_hover_s]
+    drift = [s for r in results for s in r.link_drift_m]
+    alt = [r.altitude_excursion_m for r in results if r.altitude_excursion_m is not None]
+    subsets: dict[str, dict] = {}
+    for name in sorted({s for r in results for s in r.subsets}):
+        sub = [r for r in results if name in r.subsets]
+        subsets[name] = {"episodes": len(sub), "collision_free": round(sum(not r.collided for r in sub) / len(sub), 5)}
+    return {
+        "episodes": n,
+        "collision_free": round((n - len(collisions)) / n, 5) if n else None,
+        "collisions": len(collisions),
+        "min_clearance_p001_m": _rnd(_pct(clear, 0.001)),
+        "min_clearance_median_m": _rnd(_pct(clear, 0.5)),
+        "overshoot_max_m": _rnd(max(over)) if over else None,
+        "overshoot_p99_m": _rnd(_pct(over, 0.99)),
+        "dither_changes_per_10s_median": _rnd(_pct(dither, 0.5)),
+        "dither_changes_per_10s_max": _rnd(max(dither)) if dither else None,
+        "stuck_episodes": sum(r.stuck for r in results),
+        "stale_block_s_median": _rnd(_pct(stale, 0.5)),
+        "stale_block_s_max": _rnd(max(stale)) if stale else None,
+        "stale_unblocked": sum(r.stale_unblocked for r in results),
+        "link_loss_events": len(hover),
+        "link_loss_hover_s_max": _rnd(max(hover)) if hover else None,
+        "link_loss_hover_s_median": _rnd(_pct(hover, 0.5)),
+        "link_loss_drift_m_max": _rnd(max(drift)) if drift else None,
+        "altitude_excursion_m_max": _rnd(max(alt)) if alt else None,
+        "altitude_excursion_m_median": _rnd(_pct(alt, 0.5)),
+        "false_landed": sum(r.false_landed for r in results),
+        "sim_time_s": round(sum(r.sim_s for r in results), 1),
+        "cpu_time_s": round(sum(r.wall_s for r in results), 1),
+        "subsets": subsets,
+        "collided_episodes": sorted(r.index for r in collisions),
+    }
+
