@@ -14,6 +14,7 @@ from cli import fly as _fly
 from cli import base_station as _base_station
 from cli import capture as _capture
 from cli import doctor as _doctor
+from cli import campaign as _campaign
 
 app = typer.Typer(
     name="inspect-pipe",
@@ -38,6 +39,7 @@ app.command("fly", help=_fly.HELP)(_fly.fly)
 app.command("base-station", help=_base_station.HELP)(_base_station.base_station)
 app.command("capture", help=_capture.HELP)(_capture.capture)
 app.command("doctor", help=_doctor.HELP)(_doctor.doctor)
+app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
 
 
 if __name__ == "__main__":  # pragma: no cover

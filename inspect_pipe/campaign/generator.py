@@ -78,11 +78,16 @@ def _box_heights_ok(h: float, alt_lo: float, alt_hi: float) -> bool:
     return not (alt_lo - 0.6 < h < alt_hi + 0.5)
 
 
-def _world(rng: random.Random, kind: str, alt_lo: float, alt_hi: float):
+def _world(rng: random.Random, kind: str, alt_lo: float, alt_hi: float, front_d: float, side: tuple[float, float] | None):
+    """A hold with the start ``front_d`` from the front wall (and ``side[1]`` from the wall on
+    side ``side[0]``: +1 left, -1 right), so that episodes stay short."""
     L, W, H = _r(rng.uniform(8, 30), 2), _r(rng.uniform(6, 20), 2), _r(rng.uniform(6, 15), 2)
     H = max(H, alt_hi + 3.0)
-    sx = _r(rng.uniform(1.5, min(5.0, L / 3)), 2)
-    sy = _r(rng.uniform(-W / 2 + 1.6, W / 2 - 1.6), 2)
+    sx = _r(max(1.5, L - front_d), 2)
+    if side is None:
+        sy = _r(rng.uniform(-W / 2 + 1.6, W / 2 - 1.6), 2)
+    else:
+        sy = _r(side[0] * max(-W / 2 + 1.6, W / 2 - side[1]), 2)
     boxes: list[dict] = []
 
     def free_of_start(x0, x1, y0, y1, margin) -> bool:
@@ -135,7 +140,20 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
     kind = rng.choices(SCRIPT_KINDS, _SCRIPT_WEIGHTS)[0]
     alt = _r(rng.uniform(1.0, 3.5), 2)
     sweep_up = rng.uniform(0.4, 1.2) if kind == "inspection_sweep" else 0.0
-    world, (sx, sy) = _world(rng, kind, alt, alt + sweep_up)
+    u = rng.uniform(0.2, 1.0)  # the operator's push speed
+    reach = lambda speed: rng.uniform(2.5, 2.0 + 8.0 * speed)  # noqa: E731 - approach of at most ~15 s
+    sector = rng.choice(("front", "left", "right")) if kind == "wall_push" else "front"
+    corner_side = rng.choice((-1.0, 1.0))
+    if sector != "front":
+        side = (1.0 if sector == "left" else -1.0, reach(u))
+    elif kind == "corner_push":
+        side = (corner_side, reach(u))
+    else:
+        side = None
+    front_d = reach(u if kind in ("wall_push", "corner_push", "passage", "push_yaw") else 0.5)
+    if kind == "passage":
+        front_d += 4.0
+    world, (sx, sy) = _world(rng, kind, alt, alt + sweep_up, front_d, side)
     L, W = world["hold"]["length_m"], world["hold"]["width_m"]
     sc = _Script()
     escapes: list[Escape] = []
@@ -172,8 +190,6 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
         sc.wait(1.0)
 
     if kind == "wall_push":
-        sector = rng.choice(("front", "left", "right"))
-        u = rng.uniform(0.2, 1.0)
         if sector == "front":
             push(u, 0.0, L - sx, rng.uniform(3, 8), "front")
             escape(rng.choice((-1, 1)) * 0.4, 4.0)
@@ -182,14 +198,14 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
             push(0.0, s * u, W / 2 - s * sy, rng.uniform(3, 8), sector)
             escape(-s * 0.4, 4.0)
     elif kind == "push_yaw":
-        u = rng.uniform(0.2, 0.6)
+        u = min(u, 0.6)
         push(u, 0.0, L - sx, rng.uniform(6, 12), "front", yaw_rate=rng.choice((-1, 1)) * rng.uniform(0.1, 0.3))
     elif kind == "corner_push":
-        side = rng.choice((-1.0, 1.0))
+        side = corner_side
         th = math.radians(rng.uniform(30, 60))
-        u = rng.uniform(0.3, 1.0)
+        u = max(u, 0.3)
         dist = max((L - sx) / max(math.cos(th), 0.3), (W / 2 - side * sy) / max(math.sin(th), 0.3))
-        push(u * math.cos(th), side * u * math.sin(th), min(dist, 2.0 * (L - sx) + W), rng.uniform(3, 6), "front")
+        push(u * math.cos(th), side * u * math.sin(th), min(dist, 12.0), rng.uniform(3, 6), "front")
         escape(-side * 0.4, 5.0)
     elif kind == "inspection_sweep":
         push(0.5, 0.0, L - sx, 2.0, "front")
@@ -199,7 +215,7 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
         for leg in range(rng.randint(2, 4)):
             t0 = sc.t
             sc.stick(vx=rng.uniform(0.0, 0.3), vy=direction * 0.2)
-            sc.wait(rng.uniform(5, 12))
+            sc.wait(rng.uniform(4, 8))
             moving.append((t0, sc.t))
             if leg % 2 == 0 and sweep_up > 0:
                 sc.stick(vz=0.2)
@@ -225,7 +241,7 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
         sc.button("land")
         sc.wait(8.0)
     else:  # passage
-        u = rng.uniform(0.3, 0.8)
+        u = min(max(u, 0.3), 0.8)
         push(u, 0.0, L - sx, rng.uniform(2, 5), "front")
     duration = _r(sc.t + 1.0, 2)
 
@@ -251,7 +267,7 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
         if f == "sensor_dropout":
             fault.update(duration_s=_r(rng.uniform(0.2, 3.0)), sensor=sensor)
         elif f == "packet_loss":
-            fault.update(duration_s=_r(rng.uniform(5, 30)), sensor=rng.choice(_SENSORS), rate=_r(rng.uniform(0.0, 0.1)))
+            fault.update(duration_s=_r(rng.uniform(5, 20)), sensor=rng.choice(_SENSORS), rate=_r(rng.uniform(0.0, 0.1)))
         elif f == "stuck_reading":
             fault.update(duration_s=_r(rng.uniform(0.2, 2.0)), sensor=rng.choice(_SENSORS))
         elif f == "spurious_max_range":

@@ -120,9 +120,10 @@ class EpisodeMonitor:
         if flying:
             self._dither(rec, stick_w, (d.front, d.left, d.right))
             self._stale_sectors(t, stick_w, cmd_w)
-            self._link_loss(t, rec, stick_w)
             self._escapes(t, x, y)
             self._floor_steps(t, z, d.down, u.vz_m_s)
+        if out.fsm is not FlightState.LANDED:
+            self._link_loss(t, rec, stick_w)  # a failsafe may land: hovering ends when x, y stop
         if out.fsm is FlightState.LANDED and d.down - LEG_HEIGHT_M > 0.3:
             r.false_landed = True
         r.sim_s = t
