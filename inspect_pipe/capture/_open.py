@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
-from pathlib import Path
 
 from inspect_pipe.capture._clock import Clock, ManualClock
 from inspect_pipe.errors import InputError
@@ -96,7 +95,7 @@ def backends() -> list[Backend]:
     out.append(Backend("sim", "vehicle", sim_ok, "embedded MuJoCo cargo-hold simulator" if sim_ok else "mujoco not installed", "fly --scenario FILE"))
     mav = _has("pymavlink")
     out.append(Backend("mavlink", "vehicle", mav,
-                       "pymavlink installed (telemetry as the capture state feed)" if mav else "pymavlink not installed (pip install 'inspect-pipe[mavlink]')",
+                       "pymavlink installed (MAVLink vehicle link)" if mav else "pymavlink not installed (pip install 'inspect-pipe[mavlink]')",
                        "fly --vehicle mavlink:URL"))
     del cv2
     return out

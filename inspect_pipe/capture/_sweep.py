@@ -396,6 +396,14 @@ class WriterStats:
     stored_uncompressed: int = 0  # PNGs written without compression because the queue was over half full
 
 
+def _lower_priority(niceness: int = 5) -> None:
+    """Writer threads yield the CPU to the grabbing thread (Linux: per-thread nice). Best effort."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), min(19, os.getpriority(os.PRIO_PROCESS, 0) + niceness))
+    except (AttributeError, OSError):
+        pass
+
+
 def _atomic_write(path: Path, data: bytes, *, fsync: bool) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
@@ -473,7 +481,7 @@ class SweepWriter:
         self.stats = WriterStats()
         self.error: str | None = None
         self.sha256: dict[str, str] = {}
-        self._pool = cf.ThreadPoolExecutor(max_workers=max(1, encoders), thread_name_prefix="sweep-encode")
+        self._pool = cf.ThreadPoolExecutor(max_workers=max(1, encoders), thread_name_prefix="sweep-encode", initializer=_lower_priority)
         self._pending: queue.Queue = queue.Queue()
         self._lock = threading.Lock()
         self._queued = 0
@@ -529,6 +537,7 @@ class SweepWriter:
 
     # ------------------------------------------------------------------ committer
     def _commit_loop(self) -> None:
+        _lower_priority()
         while True:
             item = self._pending.get()
             if item is None:

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from inspect_pipe.capture._clock import Clock
-from inspect_pipe.capture._geometry import CameraModel, Pose
+from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture._source import Grab, SourceInfo, default_cam_to_body
 from inspect_pipe.capture._state import TrueState, VehicleState
 from inspect_pipe.errors import InputError
