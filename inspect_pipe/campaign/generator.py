@@ -82,7 +82,7 @@ def _world(rng: random.Random, kind: str, alt_lo: float, alt_hi: float, front_d:
     """A hold with the start ``front_d`` from the front wall (and ``side[1]`` from the wall on
     side ``side[0]``: +1 left, -1 right), so that episodes stay short."""
     L, W, H = _r(rng.uniform(8, 30), 2), _r(rng.uniform(6, 20), 2), _r(rng.uniform(6, 15), 2)
-    H = max(H, alt_hi + 3.0)
+    H = _r(max(H, alt_hi + 3.0), 2)
     sx = _r(max(1.5, L - front_d), 2)
     if side is None:
         sy = _r(rng.uniform(-W / 2 + 1.6, W / 2 - 1.6), 2)
@@ -127,6 +127,9 @@ def _world(rng: random.Random, kind: str, alt_lo: float, alt_hi: float, front_d:
                 x0, y0 = rng.uniform(0.5, L - 2.0), rng.uniform(-W / 2, W / 2 - 1.0)
                 b = (x0, min(L, x0 + rng.uniform(1.0, 3.0)), y0, min(W / 2, y0 + rng.uniform(1.0, 3.0)), h)
         x0, x1, y0, y1, top = b
+        y0, y1 = max(y0, -W / 2), min(y1, W / 2)
+        if y1 - y0 < 1.0:
+            y0, y1 = (y1 - 1.0, y1) if y1 - 1.0 >= -W / 2 else (y0, y0 + 1.0)
         if x1 - x0 < 0.2 or y1 - y0 < 0.2 or not free_of_start(x0, x1, y0, y1, 1.6):
             continue
         boxes.append({"min": [_r(x0), _r(y0), 0], "max": [_r(x1), _r(y1), _r(top)]})

@@ -36,13 +36,15 @@ def _fmt(v) -> str:
 
 
 def write_report(summary: dict, per_shield: dict[str, list[EpisodeResult]], out: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     shields = list(summary["shields"])
-    plots = []
+    plots: list[tuple[str, str]] = []
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # the [campaign] extra is not installed: table only
+        return _write_html(summary, shields, plots, out, note="matplotlib not installed (pip install '.[campaign]'): no plots")
     # 1. collision-free share per subset
     subsets = sorted({k for s in shields for k in summary["shields"][s]["subsets"]})
     fig, ax = plt.subplots(figsize=(10, 4))
@@ -73,9 +75,11 @@ def write_report(summary: dict, per_shield: dict[str, list[EpisodeResult]], out:
     plt.close(fig)
     plots.append(("min_clearance_cdf.png", "Per-episode minimum clearance (CDF)"))
     # 3. worst episodes: re-flown (deterministic) and drawn from above
-    worst = _worst_plots(summary, per_shield, out, plt)
-    plots.extend(worst)
+    plots.extend(_worst_plots(summary, per_shield, out, plt))
+    return _write_html(summary, shields, plots, out)
 
+
+def _write_html(summary: dict, shields: list[str], plots: list[tuple[str, str]], out: Path, note: str = "") -> Path:
     rows = []
     for key, label in _ROWS:
         cells = "".join(f"<td>{_fmt(summary['shields'][s].get(key))}</td>" for s in shields)
@@ -92,7 +96,7 @@ def write_report(summary: dict, per_shield: dict[str, list[EpisodeResult]], out:
 <p>{summary['episodes']} episodes, seed {summary['seed']}, {summary['workers']} worker processes, {summary['elapsed_s']} s.</p>
 <table><tr><th></th>{''.join(f'<th>{html.escape(s)}</th>' for s in shields)}</tr>{''.join(rows)}</table>
 <h2>Goals (ours)</h2><ul>{goals}</ul>
-<h2>Plots</h2>{imgs}
+<h2>Plots</h2>{html.escape(note)}{imgs}
 <h2>Failures (replayable scenarios)</h2><ul>{fails or '<li>none</li>'}</ul>
 </body></html>"""
     path = out / "report.html"

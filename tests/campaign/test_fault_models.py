@@ -1,0 +1,86 @@
+"""Simulator fault models added for the campaign: each does what the scenario format says, and a
+bad fault is refused naming the field."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from inspect_pipe.errors import InputError
+from inspect_pipe.flight import parse_scenario
+from inspect_pipe.flight.scenario import Hold, SensorName, World
+from inspect_pipe.flight.sensors import SensorFaults, SensorSuite
+from inspect_pipe.flight.vehicle_sim import QuadrotorSim
+
+WORLD = World(Hold(10.0, 8.0, 8.0))
+
+
+def _readings(yaw: float, faults: SensorFaults, seconds: float = 2.0):
+    sim = QuadrotorSim(WORLD, (7.0, 0.0, 1.0), yaw, seed=1)
+    suite = SensorSuite(seed=1)
+    got = []
+    for k in range(int(seconds * 400)):
+        sim.t += 1 / 400  # the vehicle stays put: sensors only
+        suite.sample(sim, frozenset(), faults)
+        if k % 8 == 0:
+            got.append(suite.read(sim.t, sim))
+    return got
+
+
+def test_spurious_max_range_only_at_grazing_incidence():
+    f = SensorFaults(spurious_max_range={SensorName.FRONT_FLOW: 1.0})
+    square = {m.front_sonar.range_m for m in _readings(0.0, f) if m.front_sonar}
+    assert max(square) < 3.1  # 3 m ahead, head-on: true echoes
+    oblique = {m.front_sonar.range_m for m in _readings(math.radians(50), f) if m.front_sonar}
+    assert oblique == {5.0}
+
+
+def test_stuck_range_loss_flow_quality_and_packet_loss():
+    stuck = _readings(0.0, SensorFaults(stuck=frozenset({SensorName.LEFT_SONAR})))
+    assert len({m.left_sonar.range_m for m in stuck if m.left_sonar}) == 1
+    assert len({m.left_sonar.stamp_s for m in stuck if m.left_sonar}) > 5  # freshly stamped
+    lost = _readings(0.0, SensorFaults(range_loss=True))
+    assert all(m.front_sonar is None and m.bottom_tof is None for m in lost)
+    q = _readings(0.0, SensorFaults(flow_quality_zero=frozenset({SensorName.BOTTOM_FLOW})))
+    assert {m.bottom_flow.quality for m in q if m.bottom_flow} == {0}
+    half = _readings(0.0, SensorFaults(packet_loss={SensorName.BOTTOM_TOF: 0.5}), seconds=4.0)
+    stamps = {m.bottom_tof.stamp_s for m in half if m.bottom_tof}
+    assert 120 < len(stamps) < 280  # about half of 400 samples
+
+
+BASE = {
+    "format": "inspect_pipe.scenario/1", "name": "f", "duration_s": 12, "seed": 2,
+    "world": {"hold": {"length_m": 12, "width_m": 10, "height_m": 8}},
+    "vehicle": {"start": {"position": [4.0, 0, 0]}},
+    "operator": [{"t": 0.5, "button": "takeoff"}],
+}
+
+
+@pytest.mark.parametrize("fault, field", [
+    ({"t": 1, "duration_s": 1, "fault": "packet_loss", "sensor": "left_sonar"}, "faults[0].rate"),
+    ({"t": 1, "duration_s": 1, "fault": "gust"}, "faults[0].wind_m_s"),
+    ({"t": 1, "duration_s": 1, "fault": "flow_quality_zero", "sensor": "left_sonar"}, "faults[0].sensor"),
+    ({"t": 1, "duration_s": 1, "fault": "range_loss", "sensor": "left_sonar"}, "faults[0].sensor"),
+    ({"t": 1, "duration_s": 1, "fault": "battery_sag", "rate": 1.5}, "faults[0].rate"),
+])
+def test_bad_faults_are_refused(fault, field):
+    with pytest.raises(InputError, match=field.replace("[", r"\[").replace("]", r"\]")):
+        parse_scenario({**BASE, "faults": [fault]})
+
+
+def test_gust_pushes_and_mass_error_acts():
+    from inspect_pipe.flight import run_scenario
+
+    def drift(doc):
+        pos = []
+        run_scenario(parse_scenario(doc), on_tick=lambda r: pos.append(r.pos_true))
+        return pos
+
+    calm = drift(BASE)
+    windy = drift({**BASE, "faults": [{"t": 5, "duration_s": 3, "fault": "gust", "wind_m_s": [2.0, 0, 0]}]})
+    assert max(p[0] for p in windy) - max(p[0] for p in calm) > 0.05  # the gust moved it downwind
+    heavy = drift({**BASE, "vehicle": {"start": {"position": [4.0, 0, 0]}, "mass_scale": 1.2}})
+    # The model error reaches the physics. (Finding, docs/campaign.md: with 20 % more mass the
+    # stack's height loop, integrator limited to 2 m/s^2, settles well below its 1 m hold.)
+    assert heavy[-1][2] < calm[-1][2] - 0.2
