@@ -14,6 +14,9 @@ from cli import fly as _fly
 from cli import base_station as _base_station
 from cli import capture as _capture
 from cli import doctor as _doctor
+from cli import report as _report
+from cli import run as _run
+from cli import demo as _demo
 from cli import campaign as _campaign
 
 app = typer.Typer(
@@ -39,6 +42,9 @@ app.command("fly", help=_fly.HELP)(_fly.fly)
 app.command("base-station", help=_base_station.HELP)(_base_station.base_station)
 app.command("capture", help=_capture.HELP)(_capture.capture)
 app.command("doctor", help=_doctor.HELP)(_doctor.doctor)
+app.command("report", help=_report.HELP)(_report.report)
+app.command("run", help=_run.HELP)(_run.run)
+app.command("demo", help=_demo.HELP)(_demo.demo)
 app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
 
 

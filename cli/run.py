@@ -1,0 +1,156 @@
+"""``inspect-pipe run INPUT... -o OUT``: capture -> mosaic -> detect -> report, resumable."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cli._common import one_line_errors
+from inspect_pipe.errors import InputError
+
+HELP = """Run the whole batch pipeline on one or many sweeps: capture (fly:SCENARIO.yaml only) ->
+mosaic -> detect -> report.
+
+One INPUT: OUT is its run directory (OUT/mosaic, OUT/detect, OUT/report/report.html ...).
+Several: OUT/<input name>/ each, run in parallel on Dask (a local cluster of --workers
+processes, or --scheduler tcp://HOST:8786); --workers 1 runs them one after the other without Dask.
+
+Finished steps are skipped (their output exists and their options are unchanged); --force redoes
+everything, --rerun-from STEP redoes STEP and what follows. A surveyor's statuses in
+report/defects.json or defects.csv are kept.
+
+Examples:
+
+  inspect-pipe run out/sweep1 -o out/run1
+
+  inspect-pipe run out/sweep1 out/sweep2 out/sweep3 -o out/runs --workers 2
+
+  inspect-pipe run fly:scenarios/inspection_sweep_wall.yaml -o out/run_sim
+
+  inspect-pipe run out/sweep1 -o out/run1 --rerun-from report --scheme MSC.1/Circ.1399
+"""
+
+
+class RichProgress:
+    """Per-step progress bars (rich) on a terminal; silent otherwise."""
+
+    def __init__(self, label: str, enabled: bool = True) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.label = label
+        self.tasks: dict[str, int] = {}
+        self.bar = None
+        if self.enabled:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn("{task.description:28s}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), transient=False)
+            self.bar.start()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.bar:
+            return
+        key = f"{self.label} {stage}"
+        if key not in self.tasks:
+            self.tasks[key] = self.bar.add_task(key, total=max(total, 1))
+        self.bar.update(self.tasks[key], completed=done, total=max(total, 1))
+
+    def close(self) -> None:
+        if self.bar:
+            self.bar.stop()
+
+
+def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
+                 m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None):
+    from inspect_pipe.pipeline import DetectConfig, RunConfig
+    from inspect_pipe.report import SCHEMES
+
+    if scheme not in SCHEMES:
+        raise InputError("--scheme", f"{scheme!r} unknown", f"one of {', '.join(SCHEMES)}")
+    if area_m <= 0:
+        raise InputError("--area-m", f"{area_m} is not positive")
+    k = ("corrosion", "crack") if kinds == "all" else tuple(x.strip() for x in kinds.split(",") if x.strip())
+    report = {"rating": {"scheme": scheme, "area_size_m": area_m}, "pdf": not no_pdf}
+    if m_per_px:
+        report["m_per_px"] = m_per_px
+    return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing),
+                     report=report, report_out=str(report_out) if report_out else None)
+
+
+def _name(spec: str) -> str:
+    p = Path(spec[4:] if spec.startswith("fly:") else spec)
+    return p.stem if p.suffix in (".yaml", ".yml") else p.name
+
+
+def print_outcome(o, echo=typer.echo) -> None:
+    steps = ", ".join(f"{s.name} {s.action}" + (f" {s.seconds:.1f} s" if s.action == "ran" else "") for s in o.steps if s.action != "not needed")
+    echo(f"{o.run_dir}: {steps}")
+    if o.report:
+        echo(f"  report: {o.report['html']}" + (f" and {o.report['pdf']}" if o.report.get("pdf") else " (no PDF)"))
+
+
+@one_line_errors
+def run(
+    inputs: Annotated[list[str], typer.Argument(help="Sweep directories, image folders, or fly:SCENARIO.yaml.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Run directory (one input) or parent of run directories.")],
+    force: Annotated[bool, typer.Option("--force", help="Redo every step.")] = False,
+    rerun_from: Annotated[Optional[str], typer.Option("--rerun-from", help="Redo this step and the following: capture, mosaic, detect, report.")] = None,
+    workers: Annotated[int, typer.Option("--workers", help="Parallel sweeps on a local Dask cluster; 1 = no Dask.", min=1)] = 2,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Existing Dask scheduler, e.g. tcp://HOST:8786.")] = None,
+    kinds: Annotated[str, typer.Option("--kind", help="all, corrosion, crack, or a comma list.")] = "all",
+    keyframe_spacing: Annotated[float, typer.Option("--keyframe-spacing", help="Keyframes detected on their own, in frame widths apart (0: mosaic only).")] = 0.5,
+    scheme: Annotated[str, typer.Option("--scheme", help="Coating rating scheme: MSC.1/Circ.1330 or MSC.1/Circ.1399.")] = "MSC.1/Circ.1330",
+    area_m: Annotated[float, typer.Option("--area-m", help="Side of an area under consideration, m.")] = 1.0,
+    m_per_px: Annotated[Optional[float], typer.Option("--m-per-px", help="Folder input: metres per mosaic pixel.")] = None,
+    focal_px: Annotated[Optional[float], typer.Option("--focal-px", help="Folder input: focal length in pixels.")] = None,
+    no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
+) -> None:
+    from inspect_pipe.pipeline import STEP_NAMES, input_kind, run_many, run_pipeline
+
+    if rerun_from is not None and rerun_from not in STEP_NAMES:
+        raise InputError("--rerun-from", f"{rerun_from!r} is not a step", f"one of {', '.join(STEP_NAMES)}")
+    for spec in inputs:
+        input_kind(spec)  # bad input: before anything is written
+    cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
+                         m_per_px=m_per_px, focal_px=focal_px) for s in inputs]
+    if len(inputs) == 1:
+        prog = RichProgress(_name(inputs[0]))
+        try:
+            o = run_pipeline(out, cfgs[0], force=force, rerun_from=rerun_from, progress=prog, log=lambda s: typer.echo(s, err=True))
+        finally:
+            prog.close()
+        print_outcome(o)
+        return
+    names = [_name(s) for s in inputs]
+    if len(set(names)) != len(names):
+        raise InputError(inputs[0], "two inputs have the same name", "their run directories would collide")
+    jobs = [(out / n, c) for n, c in zip(names, cfgs)]
+    failed = []
+    bar = None
+    if sys.stderr.isatty():
+        from rich.progress import Progress
+
+        bar = Progress()
+        bar.start()
+        task = bar.add_task("sweeps", total=len(jobs))
+
+    def done(o):
+        if bar:
+            bar.advance(task)
+        if o.error:
+            failed.append(o.error)
+            typer.echo(f"{o.run_dir}: error: {o.error}", err=True)
+        else:
+            print_outcome(o)
+
+    try:
+        run_many(jobs, workers=workers, scheduler=scheduler, force=force, rerun_from=rerun_from, on_done=done)
+    finally:
+        if bar:
+            bar.stop()
+    summary = [{"run": str(d), "input": c.input} for d, c in jobs]
+    (out / "runs.json").write_text(json.dumps({"format": "inspect_pipe.runs/1", "runs": summary}, indent=1))
+    if failed:
+        raise InputError(failed[0].split(":")[0], f"{len(failed)} of {len(jobs)} sweeps failed; first: {failed[0]}")

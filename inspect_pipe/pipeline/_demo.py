@@ -1,0 +1,229 @@
+"""The demo: a textured wall with known defects, a simulated inspection flight over it, the whole
+pipeline, and the found defects compared with the truth.
+
+The wall is built at run time: painted steel (procedural, seeded) with corrosion patches cut out of
+the CC0 Virginia Tech corrosion images (``defects/vt_corrosion_cs``, their masks kept as ground
+truth) and, when present, cracks from ``defects/crackforest`` (research-only: read from the data
+folder at run time, never shipped). Without the data folder the shipped CC0 scenario wall
+(``scenarios/assets/wall_vt88.jpg`` and its mask) is used.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from inspect_pipe.errors import InputError
+
+REPO = Path(__file__).resolve().parents[2]
+SHIPPED_WALL = REPO / "scenarios" / "assets" / "wall_vt88.jpg"
+SHIPPED_MASK = REPO / "scenarios" / "assets" / "wall_vt88_defects.png"
+
+
+@dataclass(frozen=True)
+class TruthDefect:
+    id: str
+    cls: str
+    centroid_wall_m: tuple[float, float]
+    area_m2: float
+    bbox_wall_m: tuple[float, float, float, float]
+    source: str
+
+    def to_json(self) -> dict:
+        return {"id": self.id, "class": self.cls, "centroid_wall_m": [round(x, 4) for x in self.centroid_wall_m],
+                "area_m2": round(self.area_m2, 6), "bbox_wall_m": [round(x, 4) for x in self.bbox_wall_m], "source": self.source}
+
+
+@dataclass(frozen=True)
+class DemoWall:
+    image: Path
+    mask: Path  # 255 = defect (any class)
+    labels: Path  # 16-bit instance labels, 0 = none
+    m_per_px: float
+    origin_uv: tuple[float, float]
+    truth: tuple[TruthDefect, ...]
+    source: str
+
+
+def paint(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """Worn grey-green paint with enough texture at every scale for registration."""
+    img = np.zeros((h, w), np.float32)
+    for sigma, amp in ((1.2, 5.0), (4.0, 7.0), (16.0, 9.0), (60.0, 10.0)):
+        n = cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), sigma)
+        img += amp * n / (n.std() + 1e-6)
+    for _ in range(int(h * w / 700)):  # paint blemishes, dirt, drips
+        c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        ax = (int(rng.integers(2, 7)), int(rng.integers(2, 7)))
+        cv2.ellipse(img, c, ax, float(rng.uniform(0, 180)), 0, 360, float(rng.choice([-1, 1]) * rng.uniform(10, 22)), -1)
+    base = np.array([112, 124, 104], np.float32)  # BGR
+    out = base[None, None, :] + img[:, :, None] * np.array([1.0, 0.95, 0.9], np.float32)
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def _components(mask: np.ndarray, min_px: int) -> list[np.ndarray]:
+    n, lab, st, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return [lab == k for k in range(1, n) if st[k, 4] >= min_px]
+
+
+def _place(occupied: np.ndarray, hh: int, ww: int, rng, margin: int) -> tuple[int, int] | None:
+    H, W = occupied.shape
+    for _ in range(200):
+        y, x = int(rng.integers(margin, H - hh - margin)), int(rng.integers(margin, W - ww - margin))
+        if not occupied[max(0, y - margin):y + hh + margin, max(0, x - margin):x + ww + margin].any():
+            occupied[y:y + hh, x:x + ww] = True
+            return y, x
+    return None
+
+
+def build_demo_wall(out_dir: Path, data: Path | None, *, size_m=(3.6, 2.4), m_per_px: float = 0.002,
+                    origin_uv=(3.0, 3.0), n_corrosion: int = 9, n_cracks: int = 3, seed: int = 5) -> DemoWall:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    vt = data / "defects" / "vt_corrosion_cs" if data else None
+    if vt is None or not (vt / "images").is_dir():
+        return _shipped_wall(out_dir, m_per_px=0.003, origin_uv=origin_uv)
+    from inspect_pipe.saliency_defects import labelled_set
+
+    W, H = int(round(size_m[0] / m_per_px)), int(round(size_m[1] / m_per_px))
+    img = paint(H, W, rng)
+    labels = np.zeros((H, W), np.uint16)
+    occupied = np.zeros((H, W), bool)
+    truth: list[tuple[str, str, str]] = []
+    items = labelled_set(vt, split="eval")
+    rng.shuffle(items)
+    margin = int(0.12 / m_per_px)
+    for it in items:
+        if sum(t[1] == "corrosion" for t in truth) >= n_corrosion:
+            break
+        src, gt = it.load()
+        if src.ndim != 3:
+            continue
+        comps = [c for c in _components(gt, 1500) if c.mean() < 0.35]
+        if not comps:
+            continue
+        comp = max(comps, key=lambda c: c.sum())
+        ys, xs = np.nonzero(comp)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        size = rng.uniform(0.12, 0.30) / m_per_px  # longest side on the wall
+        s = size / max(y1 - y0, x1 - x0)
+        patch = cv2.resize(src[y0:y1, x0:x1], None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        pm = cv2.resize(comp[y0:y1, x0:x1].astype(np.float32), (patch.shape[1], patch.shape[0]), interpolation=cv2.INTER_LINEAR)
+        at = _place(occupied, patch.shape[0], patch.shape[1], rng, margin)
+        if at is None:
+            continue
+        y, x = at
+        alpha = cv2.GaussianBlur(pm, (0, 0), 1.0)[:, :, None]
+        roi = img[y:y + patch.shape[0], x:x + patch.shape[1]].astype(np.float32)
+        img[y:y + patch.shape[0], x:x + patch.shape[1]] = (alpha * patch + (1 - alpha) * roi).astype(np.uint8)
+        truth.append((f"T{len(truth) + 1:02d}", "corrosion", f"vt_corrosion_cs/{it.stem}"))
+        labels[y:y + patch.shape[0], x:x + patch.shape[1]][pm > 0.5] = len(truth)
+    cf = data / "defects" / "crackforest"
+    if n_cracks and (cf / "image").is_dir():
+        for it in labelled_set(cf, split="eval")[: n_cracks * 3]:
+            if sum(t[1] == "crack" for t in truth) >= n_cracks:
+                break
+            src, gt = it.load()
+            comps = _components(cv2.dilate(gt.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0, 400)
+            if not comps:
+                continue
+            comp = max(comps, key=lambda c: c.sum()) & gt
+            ys, xs = np.nonzero(comp)
+            y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+            m = comp[y0:y1, x0:x1]
+            m = cv2.dilate(m.astype(np.uint8), np.ones((2, 2), np.uint8)) > 0  # hair lines 2-4 mm wide on the wall
+            at = _place(occupied, m.shape[0], m.shape[1], rng, margin)
+            if at is None:
+                continue
+            y, x = at
+            a = cv2.GaussianBlur(m.astype(np.float32), (0, 0), 0.6)[:, :, None]
+            roi = img[y:y + m.shape[0], x:x + m.shape[1]].astype(np.float32)
+            img[y:y + m.shape[0], x:x + m.shape[1]] = (roi * (1 - 0.8 * a)).astype(np.uint8)
+            truth.append((f"T{len(truth) + 1:02d}", "crack", f"crackforest/{it.stem}"))
+            labels[y:y + m.shape[0], x:x + m.shape[1]][m] = len(truth)
+    return _finish(out_dir, img, labels, truth, m_per_px, origin_uv, "built from ../shared/data (CC0 VT corrosion + CrackForest at run time)")
+
+
+def _shipped_wall(out_dir: Path, *, m_per_px: float, origin_uv) -> DemoWall:
+    if not SHIPPED_WALL.is_file():
+        raise InputError(str(SHIPPED_WALL), "missing", "give --data ../shared/data to build the demo wall")
+    img = cv2.imread(str(SHIPPED_WALL))
+    mask = cv2.imread(str(SHIPPED_MASK), cv2.IMREAD_GRAYSCALE) > 127
+    n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    truth = [(f"T{k:02d}", "corrosion", "scenarios/assets/wall_vt88_defects.png") for k in range(1, n)]
+    return _finish(out_dir, img, lab.astype(np.uint16), truth, m_per_px, origin_uv, "shipped CC0 scenario wall (wall_vt88)")
+
+
+def _finish(out_dir, img, labels, truth, m_per_px, origin_uv, source) -> DemoWall:
+    u0, v0 = origin_uv
+    out = []
+    for k, (ident, cls, src) in enumerate(truth, start=1):
+        ys, xs = np.nonzero(labels == k)
+        if len(xs) == 0:
+            continue
+        u = u0 + (xs + 0.5) * m_per_px
+        v = v0 - (ys + 0.5) * m_per_px
+        out.append(TruthDefect(ident, cls, (float(u.mean()), float(v.mean())), float(len(xs) * m_per_px**2),
+                               (float(u.min()), float(v.min()), float(u.max()), float(v.max())), src))
+    paths = out_dir / "wall.png", out_dir / "wall_mask.png", out_dir / "wall_labels.png"
+    cv2.imwrite(str(paths[0]), img)
+    cv2.imwrite(str(paths[1]), (labels > 0).astype(np.uint8) * 255)
+    cv2.imwrite(str(paths[2]), labels)
+    (out_dir / "truth.json").write_text(json.dumps({
+        "format": "inspect_pipe.demo_truth/1", "source": source, "m_per_px": m_per_px, "origin_uv": list(origin_uv),
+        "size_px": [int(img.shape[1]), int(img.shape[0])], "defects": [t.to_json() for t in out]}, indent=1))
+    return DemoWall(*paths, m_per_px, tuple(origin_uv), tuple(out), source)  # type: ignore[arg-type]
+
+
+def demo_scenario(wall: DemoWall, path: Path, *, base: Path | None = None, duration_s: float | None = None) -> Path:
+    """The inspection-sweep scenario (three lawnmower passes at 1.5 m) over ``wall``."""
+    base = base or REPO / "scenarios" / "inspection_sweep_wall.yaml"
+    doc = yaml.safe_load(base.read_text())
+    doc["name"] = "demo_inspection"
+    doc["world"]["front_wall_texture"] = {
+        "image": str(wall.image.resolve()), "m_per_px": wall.m_per_px, "origin_uv": list(wall.origin_uv),
+        "defects_mask": str(wall.mask.resolve()),
+    }
+    if duration_s is not None:
+        doc["duration_s"] = duration_s
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+DEMO_SURVEY = {"vessel": "MV Demo Carrier (simulated)", "hold": "No. 3", "wall": "front wall", "side": "port",
+               "member": "plating", "frame_spacing_m": 0.8, "reference_frame": 112}
+
+
+def compare_with_truth(defects, truth, *, match_m: float = 0.15) -> dict:
+    """Match register entries (not rejected) to true defects of the same class: the closest
+    centroid inside the true defect's box grown by ``match_m``. Centroid error (m), area error
+    (relative; cracks: area of the register entry vs the true mask), recall and false alarms."""
+    used, rows = set(), []
+    found = [d for d in defects if d.status != "rejected" and d.redetected]
+    for t in truth:
+        u0, v0, u1, v1 = t.bbox_wall_m
+        cands = [(math.dist(d.centroid_wall_m, t.centroid_wall_m), i) for i, d in enumerate(found)
+                 if i not in used and d.cls == t.cls and u0 - match_m <= d.centroid_wall_m[0] <= u1 + match_m
+                 and v0 - match_m <= d.centroid_wall_m[1] <= v1 + match_m]
+        if not cands:
+            rows.append({"truth": t.id, "class": t.cls, "found": None})
+            continue
+        dist, i = min(cands)
+        used.add(i)
+        d = found[i]
+        rows.append({"truth": t.id, "class": t.cls, "found": d.id, "centroid_error_m": round(dist, 4),
+                     "area_true_m2": round(t.area_m2, 5), "area_found_m2": round(d.area_m2, 5),
+                     "area_error": round((d.area_m2 - t.area_m2) / t.area_m2, 4)})
+    matched = [r for r in rows if r["found"]]
+    return {
+        "truth": len(truth), "found": len(found), "matched": len(matched),
+        "false_alarms": len(found) - len(matched),
+        "median_centroid_error_m": float(np.median([r["centroid_error_m"] for r in matched])) if matched else None,
+        "median_abs_area_error": float(np.median([abs(r["area_error"]) for r in matched])) if matched else None,
+        "rows": rows,
+    }

@@ -1,0 +1,270 @@
+"""The pipeline's steps, declared once, in order: capture -> mosaic -> detect -> report.
+
+Each step is ``run(store, config, progress)`` plus ``done(store)`` (its artifacts exist) and the
+part of the config it depends on (``keys``): a finished step is skipped when its artifacts exist
+and the saved copy of those options is unchanged; otherwise it and every later step run again.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from inspect_pipe.errors import InputError
+
+from ._store import DEFECTS_FORMAT, RunStore, write_json, write_png
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    kinds: tuple[str, ...] = ("corrosion", "crack")
+    model: str | None = None  # default: the shipped model
+    keyframe_spacing: float = 0.5  # keyframes' centres at least this many frame widths apart; 0 = no keyframes
+    tile_px: int = 768
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Effective options of a run (saved per step in run.json)."""
+
+    input: str = ""  # sweep dir, image folder, or fly:SCENARIO
+    survey: dict = field(default_factory=dict)  # for a capture step: vessel, hold, wall, frame spacing ...
+    mosaic_detector: str = "sift"
+    mosaic_seed: int = 0
+    focal_px: float | None = None  # folder input only
+    detect: DetectConfig = field(default_factory=DetectConfig)
+    report: dict = field(default_factory=dict)  # ReportParams as a dict (see report_params)
+    report_out: str | None = None  # default RUN/report
+
+    def report_params(self):
+        from inspect_pipe.report import CoverageParams, RatingParams, RegisterParams, ReportParams
+
+        r = dict(self.report)
+        return ReportParams(
+            register=RegisterParams(**r.get("register", {})), coverage=CoverageParams(**r.get("coverage", {})),
+            rating=RatingParams(**r.get("rating", {})), m_per_px=r.get("m_per_px"),
+            region_wall_m=tuple(r["region_wall_m"]) if r.get("region_wall_m") else None, pdf=r.get("pdf", True),
+        )
+
+
+def input_kind(spec: str) -> str:
+    """'fly' (a scenario to fly: capture step), 'sweep', or 'folder'."""
+    if spec.startswith("fly:") or spec.endswith((".yaml", ".yml")):
+        return "fly"
+    p = Path(spec)
+    if not p.exists():
+        raise InputError(spec, "not found", "give a sweep directory, a folder of images, or fly:SCENARIO.yaml")
+    if (p / "sweep.json").is_file():
+        return "sweep"
+    if p.is_dir():
+        return "folder"
+    raise InputError(spec, "not a sweep directory or folder of images")
+
+
+# ---------------------------------------------------------------------------------- capture
+
+
+def run_capture_step(store: RunStore, cfg: RunConfig, progress: Progress | None) -> None:
+    """Fly the scenario in the simulator and record its 10 Hz sweep into RUN/sweep."""
+    import shutil
+
+    from inspect_pipe.capture import CaptureConfig, ManualClock, run_capture
+    from inspect_pipe.capture.sources.sim import SimSource, TrajectoryRecorder
+    from inspect_pipe.flight.runner import run_scenario
+    from inspect_pipe.flight.scenario import load_scenario
+
+    path = cfg.input[4:] if cfg.input.startswith("fly:") else cfg.input
+    sc = load_scenario(path)
+    if store.sweep_dir.exists():
+        shutil.rmtree(store.sweep_dir)
+    rec = TrajectoryRecorder(sc)
+    if progress:
+        progress("fly", 0, 1)
+    run_scenario(sc, on_tick=rec)
+    clock = ManualClock(0.0)
+    src = SimSource(sc, trajectory=rec.feed, clock=clock)
+    n = int(sc.duration_s * sc.camera.fps)
+    ccfg = CaptureConfig(rate_hz=sc.camera.fps, time_base="simulation_s", wait_for_writer=True, survey=dict(cfg.survey))
+    res = run_capture(src, store.sweep_dir, clock=clock, config=ccfg,
+                      on_progress=(lambda p: progress("capture", min(p.frames, n), n)) if progress else None)
+    if res.writer_error:
+        raise InputError(str(store.sweep_dir), res.writer_error)
+
+
+def capture_done(store: RunStore) -> bool:
+    return store.sweep_exists()
+
+
+# ---------------------------------------------------------------------------------- mosaic
+
+
+def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) -> None:
+    from inspect_pipe import mosaic as M
+
+    sweep = store.input_sweep()
+    params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px))
+    if sweep is not None:
+        out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress)
+    else:
+        out = M.run_mosaic(M.FolderSource(Path(cfg.input)), store.mosaic_dir, params=params, progress=progress)
+    if not out.H:
+        raise InputError(cfg.input, out.problems[0] if out.problems else "no frame could be placed")
+    doc = store.load_mosaic_json()
+    if sweep is None and "frame_size_wh" not in doc:  # frame sizes for coverage of a folder mosaic
+        img = M.read_image(M.FolderSource(Path(cfg.input)).path(0))
+        doc["frame_size_wh"] = [int(img.shape[1]), int(img.shape[0])]
+        write_json(store.mosaic_dir / "mosaic.json", doc)
+
+
+def mosaic_done(store: RunStore) -> bool:
+    return store.mosaic_exists()
+
+
+# ---------------------------------------------------------------------------------- detect
+
+
+def select_keyframes(views, spacing: float) -> list[int]:
+    """Frames whose mosaic centres are at least ``spacing`` frame widths from every earlier pick."""
+    if spacing <= 0:
+        return []
+    picked, centres = [], []
+    for idx, H, (w, h) in views:
+        c = H @ np.array([w / 2, h / 2, 1.0])
+        c = c[:2] / c[2]
+        scale = np.sqrt(abs(np.linalg.det(H[:2, :2]))) if abs(H[2, 2]) > 0 else 1.0
+        if all(np.linalg.norm(c - q) >= spacing * w * scale for q in centres):
+            picked.append(idx)
+            centres.append(c)
+    return picked
+
+
+def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) -> None:
+    import inspect_pipe.saliency_defects as sd
+
+    dc = cfg.detect
+    model_path = Path(dc.model) if dc.model else sd.default_model_path()
+    if not model_path.is_file():
+        raise InputError(str(model_path), "model file not found")
+    try:
+        model = sd.load_model(model_path)
+    except ValueError as err:
+        raise InputError(str(model_path), str(err)) from None
+    for k in dc.kinds:
+        if k not in model.classes:
+            raise InputError(str(model_path), f"model has no class {k!r}")
+    bgra = store.load_mosaic_image()
+    valid = bgra[:, :, 3] > 0
+    doc = store.load_mosaic_json()
+    sweep = store.load_sweep()
+    views = []
+    if sweep is not None:
+        w, h = sweep.meta.width, sweep.meta.height
+        views = [(int(f["index"]), np.asarray(f["H"], float), (w, h)) for f in doc["frames"] if f.get("group", 0) == 0]
+    keyframes = select_keyframes(views, dc.keyframe_spacing) if sweep is not None else []
+    total = 1 + len(keyframes)
+    if progress:
+        progress("detect", 0, total)
+    det = sd.detect(np.ascontiguousarray(bgra[:, :, :3]), model, kinds=dc.kinds, tile_px=dc.tile_px)
+    regions, images = [], []
+    for k in dc.kinds:
+        cm = model.classes[k]
+        p = np.where(valid, det.class_probs[k], 0).astype(np.uint8)
+        m, *_ = sd.decide(p, cm)
+        store.save_class_map("mosaic", k, "prob", p)
+        store.save_class_map("mosaic", k, "mask", (m & valid).astype(np.uint8) * 255)
+    prob = np.where(valid, det.prob, 0).astype(np.uint8)
+    mask = det.mask & valid
+    write_png(store.detect_dir / "mosaic.prob.png", prob)
+    write_png(store.detect_dir / "mosaic.mask.png", mask.astype(np.uint8) * 255)
+    for r in det.regions:
+        x, y = r.polygon_px[0]
+        if valid[y, x]:
+            regions.append({"id": len(regions) + 1, "image": "mosaic", "file": str(store.mosaic_dir / "mosaic.png"), **r.to_json()})
+    images.append({"name": "mosaic", "file": str(store.mosaic_dir / "mosaic.png"), "width": int(bgra.shape[1]),
+                   "height": int(bgra.shape[0]), "prob": "mosaic.prob.png", "mask": "mosaic.mask.png",
+                   "defect_fraction": round(float(mask.mean()), 6)})
+    if progress:
+        progress("detect", 1, total)
+    if keyframes:
+        from inspect_pipe.mosaic import SweepSource
+
+        src = SweepSource(sweep)
+        for n, idx in enumerate(keyframes):  # mosaic.json indices are positions in the sweep's frame list
+            img = src.load(idx)  # undistorted, as the mosaic's H expects
+            fd = sd.detect(img, model, kinds=dc.kinds, tile_px=dc.tile_px)
+            for k in dc.kinds:
+                m, *_ = sd.decide(fd.class_probs[k], model.classes[k])
+                store.save_class_map(str(idx), k, "mask", m.astype(np.uint8) * 255)
+            for r in fd.regions:
+                regions.append({"id": len(regions) + 1, "image": f"frame {idx}", "file": sweep.frames[idx].image, **r.to_json()})
+            if progress:
+                progress("detect", n + 2, total)
+    write_json(store.detect_dir / "defects.json", {
+        "format": DEFECTS_FORMAT,
+        "model": {"file": str(model_path), "version": model.version,
+                  "operating_points": {k: model.classes[k].threshold for k in dc.kinds},
+                  "min_area_px": {k: model.classes[k].min_area_px for k in dc.kinds}},
+        "kinds": list(dc.kinds), "images": images, "regions": regions, "errors": [],
+        "keyframes": keyframes, "keyframe_spacing": dc.keyframe_spacing,
+    })
+
+
+def detect_done(store: RunStore) -> bool:
+    return store.detect_exists()
+
+
+# ---------------------------------------------------------------------------------- report
+
+
+def report_out(store: RunStore, cfg: RunConfig) -> Path:
+    return Path(cfg.report_out) if cfg.report_out else store.report_dir
+
+
+def run_report_step(store: RunStore, cfg: RunConfig, progress: Progress | None, log=print) -> dict:
+    from inspect_pipe.report import report_from_run, write_report
+
+    out = report_out(store, cfg)
+    if progress:
+        progress("report", 0, 1)
+    rep = report_from_run(store, out, cfg.report_params())
+    written = write_report(rep, out, log=log)
+    if progress:
+        progress("report", 1, 1)
+    return written
+
+
+def report_done(store: RunStore) -> bool:
+    return store.report_exists()
+
+
+# ---------------------------------------------------------------------------------- the list
+
+
+@dataclass(frozen=True)
+class Step:
+    name: str
+    run: Callable
+    done: Callable[[RunStore], bool]
+    keys: tuple[str, ...]  # RunConfig fields this step depends on
+
+
+STEPS: tuple[Step, ...] = (
+    Step("capture", run_capture_step, capture_done, ("input", "survey")),
+    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px")),
+    Step("detect", run_detect_step, detect_done, ("detect",)),
+    Step("report", run_report_step, report_done, ("report", "report_out")),
+)
+STEP_NAMES = tuple(s.name for s in STEPS)
+
+
+def step_options(step: Step, cfg: RunConfig) -> dict:
+    d = asdict(cfg)
+    return json.loads(json.dumps({k: d[k] for k in step.keys}, default=str))

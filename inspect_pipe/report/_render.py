@@ -1,0 +1,172 @@
+"""Report files: images, COCO, the register, HTML (Jinja2) and the same HTML as PDF (WeasyPrint)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from inspect_pipe.pipeline._store import atomic_write, write_json, write_png
+
+COLOURS = {"corrosion": (0, 120, 255), "crack": (255, 0, 200)}  # BGR
+STATUS_COLOURS = {"confirmed": (0, 170, 0), "rejected": (128, 128, 128)}
+TEMPLATE = "report_template.html"
+
+
+def _bgr(mosaic_bgra: np.ndarray) -> np.ndarray:
+    bgr = mosaic_bgra[:, :, :3].copy()
+    bgr[mosaic_bgra[:, :, 3] == 0] = (235, 235, 235)
+    return bgr
+
+
+def overlay_image(report, max_w: int = 1600) -> np.ndarray:
+    img = _bgr(report.inputs.mosaic)
+    s = min(1.0, max_w / img.shape[1])
+    small = cv2.resize(img, (int(img.shape[1] * s), int(img.shape[0] * s)), interpolation=cv2.INTER_AREA)
+    for d in report.defects:
+        if not d.redetected or not d.polygon_mosaic_px:
+            continue
+        col = STATUS_COLOURS.get(d.status, COLOURS.get(d.cls, (0, 0, 255)))
+        poly = (np.asarray(d.polygon_mosaic_px, float) * s).round().astype(np.int32)
+        cv2.polylines(small, [poly], True, col, 2, cv2.LINE_AA)
+        x, y = poly.min(0)
+        cv2.putText(small, d.id, (int(x), max(12, int(y) - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(small, d.id, (int(x), max(12, int(y) - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col, 1, cv2.LINE_AA)
+    return small
+
+
+def crop_images(report, d) -> tuple[np.ndarray, np.ndarray]:
+    """(crop around the defect with its outline, context thumbnail with a box)."""
+    img = _bgr(report.inputs.mosaic)
+    H, W = img.shape[:2]
+    x, y, w, h = d.bbox_mosaic_xywh
+    m = max(16, int(0.25 * max(w, h)))
+    x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(W, x + w + m), min(H, y + h + m)
+    crop = img[y0:y1, x0:x1].copy()
+    poly = np.asarray(d.polygon_mosaic_px, np.int32) - np.array([x0, y0])
+    cv2.polylines(crop, [poly], True, COLOURS.get(d.cls, (0, 0, 255)), 1, cv2.LINE_AA)
+    s = 240 / max(crop.shape[:2])
+    crop = cv2.resize(crop, (max(1, int(crop.shape[1] * s)), max(1, int(crop.shape[0] * s))),
+                      interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_NEAREST)
+    ctx_half = max(3 * max(w, h), int(0.4 / report.wall.m_per_px))  # at least 0.8 m of wall around it
+    cx, cy = x + w // 2, y + h // 2
+    cx0, cy0, cx1, cy1 = max(0, cx - ctx_half), max(0, cy - ctx_half), min(W, cx + ctx_half), min(H, cy + ctx_half)
+    ctx = img[cy0:cy1, cx0:cx1].copy()
+    cv2.rectangle(ctx, (x - cx0 - 4, y - cy0 - 4), (x - cx0 + w + 4, y - cy0 + h + 4), (0, 0, 255), max(2, ctx_half // 80))
+    s = 240 / max(ctx.shape[:2])
+    ctx = cv2.resize(ctx, (max(1, int(ctx.shape[1] * s)), max(1, int(ctx.shape[0] * s))), interpolation=cv2.INTER_AREA)
+    return crop, ctx
+
+
+def coverage_image(report, max_w: int = 900) -> np.ndarray:
+    cov = report.coverage
+    img = np.full(cov.usable.shape + (3,), (60, 60, 220), np.uint8)  # gap: red
+    img[cov.imaged & ~cov.usable] = (0, 200, 255)  # imaged but not usable: amber
+    img[cov.usable] = (90, 190, 90)  # usable: green
+    s = max(1.0, min(4.0, max_w / img.shape[1]))
+    img = cv2.resize(img, (int(img.shape[1] * s), int(img.shape[0] * s)), interpolation=cv2.INTER_NEAREST)
+    g = report.coverage.grid
+    n = max(1, int(round(report.params.rating.area_size_m / g.cell_m)))  # area grid lines and names
+    for a in report.rating.areas:
+        c0 = int(round((a.u0_m - g.u0_m) / g.cell_m * s))
+        r0 = int(round((g.v_top_m - a.v1_m) / g.cell_m * s))
+        cv2.rectangle(img, (c0, r0), (c0 + int(n * s), r0 + int(n * s)), (40, 40, 40), 1)
+        cv2.putText(img, f"{a.name} {a.rating}", (c0 + 4, r0 + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (20, 20, 20), 1, cv2.LINE_AA)
+    for d in report.defects:
+        u, v = d.centroid_wall_m
+        cv2.circle(img, (int((u - g.u0_m) / g.cell_m * s), int((g.v_top_m - v) / g.cell_m * s)), 3, (0, 0, 0), -1)
+    return img
+
+
+def coco(report) -> dict:
+    m = report.inputs.mosaic
+    cats = [{"id": 1, "name": "corrosion", "supercategory": "defect"}, {"id": 2, "name": "crack", "supercategory": "defect"}]
+    ids = {c["name"]: c["id"] for c in cats}
+    anns = []
+    for d in report.defects:
+        if d.status == "rejected" or not d.redetected or d.cls not in ids:
+            continue
+        poly = [float(c) for p in d.polygon_mosaic_px for c in p]
+        anns.append({
+            "id": len(anns) + 1, "image_id": 1, "category_id": ids[d.cls], "segmentation": [poly],
+            "area": float(d.area_px), "bbox": [float(x) for x in d.bbox_mosaic_xywh], "iscrowd": 0,
+            "attributes": {"defect_id": d.id, "status": d.status, "confidence": round(d.confidence, 4),
+                           "area_m2": round(d.area_m2, 6), "centroid_wall_m": [round(x, 4) for x in d.centroid_wall_m]},
+        })
+    return {
+        "info": {"description": "inspect_pipe defect register of a wall mosaic (rejected entries left out)",
+                 "version": report.trace["software"], "date_created": report.trace["created_utc"]},
+        "licenses": [],
+        "images": [{"id": 1, "file_name": "mosaic.png", "width": int(m.shape[1]), "height": int(m.shape[0])}],
+        "categories": cats, "annotations": anns,
+    }
+
+
+def _frames_text(ix) -> str:
+    from ._register import _ranges
+
+    r = _ranges(ix)
+    return r if len(r) < 60 else r[:57] + "..."
+
+
+def render_html(report, assets: dict) -> str:
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(Path(__file__).parent)), autoescape=True)
+    tpl = env.get_template(TEMPLATE)
+    return tpl.render(r=report, assets=assets, frames_text=_frames_text, cov=report.coverage.to_json(),
+                      trace_json=json.dumps(report.trace, indent=1, default=str))
+
+
+def render_pdf(html: str, base: Path, path: Path) -> str | None:
+    """Write ``path`` from the HTML; None, or why it could not."""
+    try:
+        import weasyprint
+    except ImportError as err:
+        return f"WeasyPrint is not installed ({err}); pip install 'inspect-pipe[report]'"
+    except OSError as err:  # missing Pango/HarfBuzz shared libraries
+        return f"WeasyPrint cannot load its system libraries ({err}); on Debian: apt-get install libpango-1.0-0 libpangoft2-1.0-0"
+    try:
+        pdf = weasyprint.HTML(string=html, base_url=str(base)).write_pdf()
+    except Exception as err:  # noqa: BLE001 - any renderer failure leaves the HTML report standing
+        return f"WeasyPrint failed: {err.__class__.__name__}: {err}"
+    atomic_write(path, pdf)
+    return None
+
+
+def render_all(report, out: Path, *, log=print) -> dict:
+    from ._report import register_files
+
+    a = out / "assets"
+    (a / "crops").mkdir(parents=True, exist_ok=True)
+    write_png(a / "overlay.png", overlay_image(report))
+    write_png(a / "coverage.png", coverage_image(report))
+    defects = []
+    for d in report.defects:
+        if d.redetected and d.polygon_mosaic_px:
+            crop, ctx = crop_images(report, d)
+            write_png(a / "crops" / f"{d.id}.png", crop)
+            write_png(a / "crops" / f"{d.id}_context.png", ctx)
+            d = d.__class__(**{**d.__dict__, "crop": f"assets/crops/{d.id}.png", "context": f"assets/crops/{d.id}_context.png"})
+        defects.append(d)
+    report.defects = defects
+    reg, csv_text = register_files(report)
+    write_json(out / "defects.json", reg)
+    atomic_write(out / "defects.csv", csv_text.encode())
+    write_json(out / "coco.json", coco(report))
+    write_json(out / "coverage.json", {"format": "inspect_pipe.coverage/1", **report.coverage.to_json()})
+    write_json(out / "rating.json", {"format": "inspect_pipe.rating/1", **report.rating.to_json()})
+    assets = {"overlay": "assets/overlay.png", "coverage": "assets/coverage.png"}
+    html = render_html(report, assets)
+    atomic_write(out / "report.html", html.encode())
+    written = {"html": out / "report.html", "defects_json": out / "defects.json", "defects_csv": out / "defects.csv",
+               "coco": out / "coco.json", "pdf": None}
+    if report.params.pdf:
+        why = render_pdf(html, out, out / "report.pdf")
+        if why is None:
+            written["pdf"] = out / "report.pdf"
+        else:
+            log(f"warning: {out / 'report.pdf'} not written: {why}; report.html has the same content")
+    return written

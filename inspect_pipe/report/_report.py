@@ -1,0 +1,235 @@
+"""From a run directory's mosaic and detections to the surveyor's report files."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import inspect_pipe
+from inspect_pipe.errors import InputError
+
+from ._coverage import Coverage, CoverageParams, WallGrid, compute_coverage, sharpness
+from ._geo import Survey, WallMap, parse_survey
+from ._rating import RatingParams, WallRating, rate_wall
+from ._register import (
+    Defect, FrameView, KeyframeDetection, RegisterParams, assign_ids, build_defects, merged_masks, read_register,
+    register_csv, register_json,
+)
+
+REPORT_FORMAT = "inspect_pipe.report/1"
+
+
+@dataclass(frozen=True)
+class ReportParams:
+    register: RegisterParams = field(default_factory=RegisterParams)
+    coverage: CoverageParams = field(default_factory=CoverageParams)
+    rating: RatingParams = field(default_factory=RatingParams)
+    m_per_px: float | None = None  # for a mosaic without wall_from_mosaic (plain folder input)
+    region_wall_m: tuple[float, float, float, float] | None = None  # u0, v0, u1, v1; default: survey / texture / footprints
+    pdf: bool = True
+
+
+@dataclass
+class ReportInputs:
+    mosaic_doc: dict
+    mosaic_where: str
+    mosaic: np.ndarray  # BGRA
+    detections: dict
+    class_masks: dict[str, np.ndarray]  # mosaic-sized bool
+    class_probs: dict[str, np.ndarray]  # mosaic-sized uint8
+    keyframes: list[KeyframeDetection]
+    sweep: object | None = None  # inspect_pipe.capture.Sweep
+    previous: list[Defect] = field(default_factory=list)
+    checksums: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class Report:
+    defects: list[Defect]
+    wall: WallMap
+    survey: Survey
+    coverage: Coverage
+    rating: WallRating
+    views: list[FrameView]
+    inputs: ReportInputs
+    params: ReportParams
+    trace: dict
+    unplaced: list[dict]
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def frame_views(mosaic_doc: dict, where: str, sweep=None) -> list[FrameView]:
+    """Placed frames of the main mosaic image (group 0)."""
+    size = None
+    if sweep is not None:
+        size = (int(sweep.meta.width), int(sweep.meta.height))
+    size = tuple(mosaic_doc.get("frame_size_wh") or size or (0, 0))
+    views = []
+    for i, f in enumerate(mosaic_doc["frames"]):
+        if not isinstance(f, dict):
+            raise InputError(where, f"frames[{i}]: not an object")
+        if f.get("group", 0) != 0:
+            continue
+        try:
+            H = np.asarray(f["H"], float)
+            idx = int(f["index"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(where, f"frames[{i}]: field 'H' or 'index' missing or malformed") from None
+        if H.shape != (3, 3) or not np.all(np.isfinite(H)):
+            raise InputError(where, f"frames[{i}]: field 'H' is not a 3x3 matrix of numbers")
+        fs = tuple(f.get("size_wh") or size)
+        views.append(FrameView(idx, H, (int(fs[0]), int(fs[1]))))
+    return views
+
+
+def _region(params: ReportParams, survey_raw: dict, sweep, views, wall: WallMap, mosaic_alpha) -> tuple[float, float, float, float]:
+    if params.region_wall_m is not None:
+        return params.region_wall_m
+    r = (survey_raw or {}).get("region_wall_m")
+    if isinstance(r, list) and len(r) == 4 and all(isinstance(x, (int, float)) for x in r):
+        return tuple(float(x) for x in r)  # type: ignore[return-value]
+    tex = getattr(getattr(sweep, "meta", None), "wall_texture", None)
+    if tex is not None:  # simulated wall: the textured part is the wall under survey
+        img = cv2.imread(str(tex.image), cv2.IMREAD_UNCHANGED)
+        if img is not None:
+            u0, v1 = tex.origin_uv
+            return (u0, v1 - img.shape[0] * tex.m_per_px, u0 + img.shape[1] * tex.m_per_px, v1)
+    ys, xs = np.nonzero(mosaic_alpha)
+    if len(xs) == 0:
+        raise InputError("mosaic.png", "no covered pixel")
+    pts = wall.to_wall(np.array([[xs.min(), ys.min()], [xs.max(), ys.min()], [xs.max(), ys.max()], [xs.min(), ys.max()]], float))
+    return (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()), float(pts[:, 1].max()))
+
+
+def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Report:
+    """Everything the report shows, computed in memory (no file written)."""
+    doc, where = inp.mosaic_doc, inp.mosaic_where
+    sweep = inp.sweep
+    survey_raw = dict(getattr(getattr(sweep, "meta", None), "survey", None) or {})
+    survey_where = str(Path(sweep.path) / "sweep.json") if sweep is not None else where
+    survey = parse_survey(survey_raw, survey_where)
+    wall = WallMap.from_mosaic_json(doc, where, m_per_px_override=params.m_per_px, mosaic_hw=inp.mosaic.shape[:2])
+    views = frame_views(doc, where, sweep)
+    if views and views[0].size_wh == (0, 0):
+        raise InputError(where, "frame size unknown", "mosaic.json of a sweep, or frames with 'size_wh'")
+    valid = inp.mosaic[:, :, 3] > 0
+    masks, warped = merged_masks(inp.class_masks, inp.keyframes, params=params.register)
+    new = build_defects(masks, inp.class_probs, wall, views, survey, keyframe_masks=warped, valid=valid, params=params.register)
+    defects = assign_ids(new, inp.previous, params=params.register)
+
+    # sharpness of every placed frame, for coverage
+    sharp: dict[int, float] = {}
+    if sweep is not None:
+        for v in views:  # mosaic.json indices are positions in the sweep's frame list
+            if not 0 <= v.index < len(sweep.frames):
+                raise InputError(where, f"frame index {v.index} is not in the sweep ({len(sweep.frames)} frames)")
+            rec = sweep.frames[v.index]
+            g = cv2.imread(str(rec.image_path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
+            if g is not None:
+                sharp[v.index] = sharpness(cv2.resize(g, (g.shape[1] * 2, g.shape[0] * 2)))
+    region = _region(params, survey_raw, sweep, views, wall, valid)
+    grid = WallGrid.around(*region, params.coverage.cell_m)
+    coverage = compute_coverage(views, wall, grid, sharp, params=params.coverage)
+
+    # rating rasters: corrosion of every entry not rejected, warped onto the wall grid
+    keep = np.zeros(valid.shape, np.uint8)
+    for d in defects:
+        if d.cls == "corrosion" and d.status != "rejected" and d.redetected:
+            cv2.fillPoly(keep, [np.asarray(d.polygon_mosaic_px, np.int32)], 1)
+    corr = masks.get("corrosion", np.zeros(valid.shape, bool)) & (keep > 0)
+    prob = inp.class_probs.get("corrosion", np.zeros(valid.shape, np.uint8))
+    hard = corr & (prob >= int(round(params.rating.hard_rust_prob * 255)))
+    corr_g = grid.from_mosaic(corr.astype(np.uint8), wall) > 0
+    hard_g = grid.from_mosaic(hard.astype(np.uint8), wall) > 0
+    rating = rate_wall(coverage.usable, corr_g, hard_g, origin_uv_m=(grid.u0_m, grid.v_top_m), cell_m=grid.cell_m, params=params.rating)
+
+    model = inp.detections.get("model") or {}
+    trace = {
+        "software": f"inspect_pipe {inspect_pipe.__version__}",
+        "model_version": model.get("version"), "model_file": Path(str(model.get("file", ""))).name or None,
+        "operating_points": model.get("operating_points"), "min_area_px": model.get("min_area_px"),
+        "kinds": inp.detections.get("kinds"),
+        "sweep_id": None if sweep is None else f"{Path(sweep.path).name} ({sweep.meta.created_utc or 'no date'})",
+        "sweep_path": None if sweep is None else str(sweep.path),
+        "sweep_complete": None if sweep is None else bool(sweep.complete),
+        "wall_map": wall.source, "wall_fit_rms_m": wall.fit_rms_m, "wall_fit_max_m": wall.fit_max_m,
+        "m_per_px": wall.m_per_px,
+        "checksums_sha256": inp.checksums,
+        "params": json.loads(json.dumps(asdict(params), default=str)),
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    }
+    return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []))
+
+
+def load_previous(out_dir: Path) -> list[Defect]:
+    j, c = out_dir / "defects.json", out_dir / "defects.csv"
+    if not j.exists():
+        if c.exists():
+            raise InputError(str(c), "found without defects.json", "keep both files of a register together")
+        return []
+    return read_register(j, c)
+
+
+def report_from_run(store, out_dir: Path, params: ReportParams = ReportParams()) -> Report:
+    """Load a run directory's artifacts (RunStore) and the previous register in ``out_dir``."""
+    out_dir = Path(out_dir)
+    previous = load_previous(out_dir)  # first: a hand-edited register with a bad status stops before anything is written
+    doc = store.load_mosaic_json()
+    mosaic = store.load_mosaic_image()
+    det = store.load_detections()
+    kinds = [k for k in det["kinds"] if isinstance(k, str)]
+    masks, probs = {}, {}
+    for k in kinds:
+        m = store.load_class_map("mosaic", k, "mask")
+        if m.shape != mosaic.shape[:2]:
+            raise InputError(str(store.class_map_path("mosaic", k, "mask")), f"size {m.shape[::-1]} is not the mosaic's {mosaic.shape[1::-1]}")
+        masks[k] = m > 0
+        probs[k] = store.load_class_map("mosaic", k, "prob")
+    sweep = store.load_sweep()
+    views = {v.index: v for v in frame_views(doc, str(store.mosaic_dir / "mosaic.json"), sweep)}
+    keyframes = []
+    for idx in det.get("keyframes") or []:
+        if idx in views:
+            keyframes.append(KeyframeDetection(views[idx], {k: store.load_class_map(str(idx), k, "mask") > 0 for k in kinds}))
+    checksums = {}
+    for name, p in [("mosaic.json", store.mosaic_dir / "mosaic.json"), ("mosaic.png", store.mosaic_dir / "mosaic.png"),
+                    ("detect/defects.json", store.detect_dir / "defects.json")]:
+        checksums[name] = sha256_file(p)
+    if sweep is not None:
+        for name in ("sweep.json", "frames.jsonl"):
+            checksums[f"sweep/{name}"] = sha256_file(Path(sweep.path) / name)
+    inp = ReportInputs(doc, str(store.mosaic_dir / "mosaic.json"), mosaic, det, masks, probs, keyframes, sweep, previous, checksums)
+    return build_report(inp, params)
+
+
+def write_report(report: Report, out_dir: Path, *, log=print) -> dict[str, Path | None]:
+    """Write report.html, report.pdf (when WeasyPrint can), defects.json/.csv, coco.json,
+    coverage.json, rating.json and the images under assets/. Returns what was written."""
+    from ._render import render_all
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return render_all(report, out_dir, log=log)
+
+
+def register_files(report: Report) -> tuple[dict, str]:
+    extra = {
+        "report": REPORT_FORMAT,
+        "wall_rating": report.rating.to_json(),
+        "survey": report.survey.to_json(),
+        "traceability": report.trace,
+    }
+    return register_json(report.defects, extra), register_csv(report.defects)
