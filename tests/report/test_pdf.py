@@ -1,0 +1,76 @@
+"""report.pdf rendered to PNG (pdftoppm): pages not blank, the register in it; coverage map."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+
+from inspect_pipe.report import CoverageParams, ReportParams, report_from_run, write_report
+
+
+def _weasyprint_ok() -> str | None:
+    from inspect_pipe.report._render import render_pdf
+
+    try:
+        import weasyprint  # noqa: F401
+    except (ImportError, OSError) as err:
+        return f"WeasyPrint unusable here: {err}"
+    return None
+
+
+@pytest.mark.skipif(shutil.which("pdftoppm") is None, reason="pdftoppm absent (make test installs poppler-utils where apt works)")
+def test_pdf_pages_are_not_blank_and_hold_the_register(run_dir, tmp_path):
+    why = _weasyprint_ok()
+    if why:
+        pytest.skip(why)
+    out = tmp_path / "rep"
+    rep = report_from_run(run_dir, out, ReportParams(coverage=CoverageParams(max_m_per_px=0.01)))
+    written = write_report(rep, out, log=lambda s: None)
+    assert written["pdf"] == out / "report.pdf"
+    subprocess.run(["pdftoppm", "-r", "40", "-png", str(out / "report.pdf"), str(tmp_path / "page")], check=True)
+    pages = sorted(tmp_path.glob("page*.png"))
+    assert pages
+    for p in pages:
+        g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        assert (g < 200).mean() > 0.005, f"{p.name} is blank"
+    ids = [d["id"] for d in json.loads((out / "defects.json").read_text())["defects"]]
+    if shutil.which("pdftotext"):
+        text = subprocess.run(["pdftotext", str(out / "report.pdf"), "-"], capture_output=True, text=True, check=True).stdout
+        assert "Defect register" in text and all(i in text for i in ids)
+        assert "MSC.1/Circ.1330" in text and "Breakdown" in text
+
+
+def test_pdf_unavailable_degrades_with_a_clear_message(run_dir, tmp_path, monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_weasy(name, *a, **k):
+        if name == "weasyprint":
+            raise ImportError("No module named 'weasyprint'")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_weasy)
+    msgs = []
+    rep = report_from_run(run_dir, tmp_path / "rep", ReportParams())
+    written = write_report(rep, tmp_path / "rep", log=msgs.append)
+    assert written["pdf"] is None and (tmp_path / "rep" / "report.html").is_file()
+    assert "report.pdf not written" in msgs[0] and "inspect-pipe[report]" in msgs[0]
+
+
+def test_coverage_marks_gaps_and_low_resolution(run_dir, tmp_path):
+    # the fixture's frames are 5 mm/px: with a 3 mm/px limit nothing is usable, all is gap
+    rep = report_from_run(run_dir, tmp_path / "a", ReportParams(pdf=False))
+    assert rep.coverage.usable_fraction == 0.0 and rep.coverage.imaged.mean() > 0.95
+    assert all("mm/px" in f.reason for f in rep.coverage.frames)
+    rep = report_from_run(run_dir, tmp_path / "b", ReportParams(pdf=False, coverage=CoverageParams(max_m_per_px=0.01),
+                                                                region_wall_m=(3.0, 0.65, 6.0, 3.0)))
+    # frames cover u 3.0..5.6, v 1.65..3.0 of a 3.0 x 2.35 m region
+    expected = (2.6 * 1.35) / (3.0 * 2.35)
+    assert rep.coverage.usable_fraction == pytest.approx(expected, abs=0.01)
+    assert rep.coverage.gaps and rep.coverage.gaps[0]["area_m2"] == pytest.approx(3.0 * 2.35 - 2.6 * 1.35, rel=0.02)
