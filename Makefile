@@ -5,12 +5,12 @@ PY     := $(VENV)/bin/python
 DATA   ?= ../shared/data
 OUT    ?= out
 
-.PHONY: install test demo bench clean chromium
+.PHONY: install test demo bench clean chromium pdfdeps
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,base,mavlink,browser-test]' --config-settings editable_mode=compat
+	$(PY) -m pip install -q -e '.[test,base,mavlink,browser-test,report,dask]' --config-settings editable_mode=compat
 	touch $@
 
 # The browser test drives Debian's Chromium (never a downloaded browser). Installed when apt can;
@@ -21,13 +21,21 @@ chromium:
 	  || echo "chromium not installed: the browser test will skip"
 
 
+# report.pdf (WeasyPrint) needs Pango; the PDF test renders pages with pdftoppm (poppler-utils).
+# Installed when apt can; otherwise the PDF is skipped with a message and its test skips.
+pdfdeps:
+	@{ command -v pdftoppm >/dev/null 2>&1 && ldconfig -p 2>/dev/null | grep -q libpangoft2; } || \
+	  { command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] \
+	  && (apt-get update -qq && apt-get install -y -qq poppler-utils libpango-1.0-0 libpangoft2-1.0-0 fonts-dejavu-core) >/dev/null 2>&1; } \
+	  || echo "poppler-utils/Pango not installed: report.pdf and its test will be skipped"
+
 install: $(VENV)/.installed
 
-test: $(VENV)/.installed chromium
+test: $(VENV)/.installed chromium pdfdeps
 	$(PY) -m pytest
 
-demo: $(VENV)/.installed
-	$(VENV)/bin/inspect-pipe mosaic $(DATA)/mosaic/synth_rust_sweep/frames -o $(OUT)/demo_mosaic
+demo: $(VENV)/.installed pdfdeps
+	$(VENV)/bin/inspect-pipe demo -o $(OUT)/demo --data $(DATA)
 
 bench: $(VENV)/.installed
 	$(PY) -m bench --data $(DATA)
