@@ -231,10 +231,16 @@ class MAVStateUpdater:
             age = now - r.stamp_s + p.sonar_latency_s  # type: ignore[union-attr]
             return r.range_m - closing_m_s * age  # type: ignore[union-attr,operator]
 
+        def stale(r: RangeReading | None) -> bool:
+            return r is None or now - r.stamp_s > p.sonar_timeout_s
+
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
         return Clearance(
             front_m=front if front is not None else None,
             left_m=at_now(m.left_sonar, est.vy_m_s),
             right_m=at_now(m.right_sonar, -est.vy_m_s),
             down_m=est.height_m if est.mode != EstimationMode.ALARM_NONE else None,
+            front_stale=stale(m.front_sonar),
+            left_stale=stale(m.left_sonar),
+            right_stale=stale(m.right_sonar),
         )

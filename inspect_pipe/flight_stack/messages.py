@@ -139,6 +139,11 @@ class Clearance:
     left_m: float | None = None
     right_m: float | None = None
     down_m: float | None = None
+    # The sector's sonar has gone silent (no reading within its time-out): unknown, not free.
+    # ``None`` with a fresh reading means nothing within range.
+    front_stale: bool = False
+    left_stale: bool = False
+    right_stale: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,6 +14,8 @@ from inspect_pipe.flight_stack.params import BehaviorParams
 
 def obstacle_ahead(cmd: SpeedCommand, inputs: BehaviorInputs, p: BehaviorParams) -> bool:
     c, e = inputs.clearance, inputs.estimate
+    if (cmd.vx_m_s > 0 and c.front_stale) or (cmd.vy_m_s > 0 and c.left_stale) or (cmd.vy_m_s < 0 and c.right_stale):
+        return True  # moving into a sector whose sonar went silent
     kw = dict(safe_m=p.safe_distance_m, response_time_s=p.response_time_s, decel_m_s2=p.brake_decel_m_s2)
     if cmd.vx_m_s > 0 and must_stop(c.front_m, max(e.vx_m_s, cmd.vx_m_s), **kw):
         return True
