@@ -51,6 +51,11 @@ app = typer.Typer(
 )
 
 
+class Engine(str, Enum):
+    saliency = "saliency"
+    onnx = "onnx"
+
+
 class Kind(str, Enum):
     all = "all"
     corrosion = "corrosion"
@@ -129,13 +134,17 @@ def run(
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file (default: the shipped one).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64).", min=256)] = 768,
+    engine: Annotated[Engine, typer.Option("--engine", help="saliency: Bayes on saliency features (default); onnx: the learned network.")] = Engine.saliency,
 ) -> None:
     """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json.
 
-    Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack
+    Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack ;
+    inspect-pipe detect frames/ -o out/det --engine onnx
     """
     import inspect_pipe.saliency_defects as sd
 
+    if engine is Engine.onnx:
+        return _run_onnx(input, out, kind, model, tile_px)
     if tile_px % 64:
         raise InputError("--tile-px", f"{tile_px} is not a multiple of 64")
     model_path = model or sd.default_model_path()
@@ -199,6 +208,83 @@ def run(
         raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
 
 
+def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
+    """``detect --engine onnx``: same outputs, the learned network on onnxruntime; a sweep's
+    equal-size frames run in batches."""
+    from inspect_pipe.saliency_defects import _onnx_detect as od
+
+    if tile_px % od.MULTIPLE_OF:
+        raise InputError("--tile-px", f"{tile_px} is not a multiple of {od.MULTIPLE_OF}")
+    model_path = model or od.default_onnx_path()
+    try:
+        mdl = od.load_onnx_model(model_path)
+    except ValueError as err:
+        raise InputError(model_path, str(err), "use --engine saliency, or train one with 'inspect-pipe detect train --engine onnx'") from None
+    kinds = _kinds(kind)
+    for k in kinds:
+        if k not in mdl.classes:
+            raise InputError(model_path, f"model has no class {k!r}", f"has {', '.join(mdl.classes)}")
+    files = list_inputs(input)
+    out.mkdir(parents=True, exist_ok=True)
+    images, regions, errors = [], [], []
+    used: set[str] = set()
+
+    def fail(path, err):
+        errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
+        typer.echo(f"error: {err}", err=True)
+
+    chunk = 4
+    for s in range(0, len(files), chunk):
+        ready = []  # (path, name, img, valid)
+        for path in files[s:s + chunk]:
+            name = _name_for(path, used)
+            try:
+                img, valid = read_image(path)
+                od._check(img)
+            except InputError as err:
+                fail(path, err)
+                continue
+            except ValueError as err:
+                fail(path, InputError(path, str(err)))
+                continue
+            ready.append((path, name, img, valid))
+        if not ready:
+            continue
+        dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds) if tile_px == od.TILE_PX else \
+            [od.detect_onnx(r[2], mdl, kinds=kinds, tile_px=tile_px) for r in ready]
+        for (path, name, img, valid), det in zip(ready, dets):
+            prob, mask = det.prob, det.mask
+            if valid is not None:
+                prob = np.where(valid, prob, 0).astype(np.uint8)
+                mask = mask & valid
+            _write_png(out / f"{name}.prob.png", prob)
+            _write_png(out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
+            kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
+            for r in kept:
+                regions.append({"id": len(regions) + 1, "image": name, "file": str(path), **r.to_json()})
+            images.append({
+                "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
+                "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
+                "defect_fraction": round(float(mask.mean()), 6),
+            })
+            typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
+    doc = {
+        "format": DEFECTS_FORMAT,
+        "model": {"file": str(model_path), "engine": "onnx", "version": mdl.version,
+                  "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
+                  "min_area_px": {k: mdl.min_area_px[k] for k in kinds}},
+        "kinds": list(kinds),
+        "images": images,
+        "regions": regions,
+        "errors": errors,
+    }
+    (out / "defects.json").write_text(json.dumps(doc, indent=1))
+    if errors:
+        first = errors[0]
+        more = f"; {len(errors) - 1} more failed" if len(errors) > 1 else ""
+        raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
+
+
 @app.command("train")
 @one_line_errors
 def train(
@@ -207,12 +293,18 @@ def train(
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
+    engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz); onnx: the learned network (.onnx, needs the [train] extra).")] = Engine.saliency,
+    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: stop training after this many minutes.", min=1)] = 43.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
-    Example: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz
+    Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v1.onnx
     """
     import inspect_pipe.saliency_defects as sd
+
+    if engine is Engine.onnx:
+        return _train_onnx(data, out, version, time_budget_min)
 
     cv2.setNumThreads(1)
     if not data.is_dir():
@@ -240,3 +332,20 @@ def train(
     model = sd.train_model(sources, version=version, configs=configs, log=typer.echo)
     sd.save_model(model, out)
     typer.echo(f"wrote {out}")
+
+
+def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> None:
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise InputError("torch", "not installed", "pip install -e '.[train]'") from None
+    from inspect_pipe.saliency_defects._onnx_train import SET_OF_CLASS, OnnxTrainConfig, export_onnx, train as train_net
+
+    if not data.is_dir():
+        raise InputError(data, "not a folder")
+    missing = [s for s in SET_OF_CLASS.values() if not (data / s).is_dir()]
+    if missing:
+        raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
+    ckpt = out.with_suffix(".pt")
+    train_net(data, ckpt, OnnxTrainConfig(time_budget_s=60 * time_budget_min), log=typer.echo)
+    export_onnx(ckpt, out, version=version, log=typer.echo)

@@ -11,6 +11,10 @@ model file reader/writer.
     >>> model = load_model(default_model_path())
     >>> det = detect(bgr_image, model, kinds=("corrosion", "crack"))
     >>> det.prob, det.mask, det.regions
+
+The learned engine (``--engine onnx``, a compact U-Net on onnxruntime) has the same outputs:
+
+    >>> det = detect_onnx(bgr_image, load_onnx_model(default_onnx_path()))
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from ._combine import combine_max, combine_normalised_sum, conspicuity_maps
 from ._datasets import SETS, SPLIT_RULE, LabelledImage, generic_set, labelled_set, split_of
 from ._detect import TILE_PX, Detection, Region, class_probabilities, class_probabilities_u8, decide, detect
 from ._features import FEATURE_NAMES, FeatureStack, compute_features
+from ._onnx_detect import OnnxModel, default_onnx_path, detect_onnx, detect_onnx_batch, load_onnx_model, onnx_probabilities_u8
 from ._model import ClassModel, DefectModel, load_model, save_model
 from ._train import DEFAULT_CONFIGS, ClassTrainConfig, train_class, train_model
 
@@ -39,5 +44,6 @@ __all__ = [
     "LabelledImage", "Region",
     "class_probabilities", "class_probabilities_u8", "combine_max", "combine_normalised_sum",
     "compute_features", "conspicuity_maps", "decide", "default_model_path", "detect",
-    "generic_set", "labelled_set", "load_model", "SETS", "save_model", "split_of", "train_class", "train_model",
+    "generic_set", "labelled_set", "OnnxModel", "default_onnx_path", "detect_onnx", "detect_onnx_batch",
+    "load_onnx_model", "onnx_probabilities_u8", "load_model", "SETS", "save_model", "split_of", "train_class", "train_model",
 ]

@@ -1,0 +1,224 @@
+"""Learned defect segmentation on onnxruntime: model loading with metadata checks, tiled
+inference with overlap, decisions and regions in the same form as the saliency engine.
+
+No PyTorch here: the network was trained and exported by ``_onnx_train`` and ships as
+``models/defects_unet_v1.onnx``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ._detect import Detection, Region, regions_of
+from ._features import check_image
+
+ONNX_FORMAT = "inspect_pipe.defect_onnx/1"
+CLASSES = ("corrosion", "crack", "surface")
+#: Network input: RGB / 255, then (x - mean) / std per channel.
+INPUT_MEAN = (0.5, 0.5, 0.5)
+INPUT_STD = (0.25, 0.25, 0.25)
+#: The network pools 4 times: its input sides must be multiples of 16 (inputs are reflect-padded).
+MULTIPLE_OF = 16
+#: Smallest image side accepted (px): below, the deepest level is under 2 x 2 pixels.
+MIN_SIDE_PX = 32
+#: Speckle removal, as in the saliency engine (a 10 px hair line; an 8 x 8 px patch).
+MIN_AREA_PX = {"corrosion": 64, "crack": 20, "surface": 64}
+#: Scoring tolerance per class (px), the benchmark protocol.
+TOL_PX = {"corrosion": 0.0, "crack": 2.0, "surface": 0.0}
+LICENCE = (
+    "Weights trained on research-only data (CrackForest: non-commercial research; VT corrosion "
+    "condition state set: CC0 per its repository, unconfirmed; SD-saliency-900: research use). "
+    "Research and evaluation use only."
+)
+#: Tiling: core tile side and overlap margin (px, multiples of MULTIPLE_OF); the margin covers
+#: most of the network's receptive field (~150 px), so tiles agree with whole-image inference.
+TILE_PX = 512
+MARGIN_PX = 96
+#: Images up to this many pixels run in one pass.
+WHOLE_MAX_PX = 2048 * 1536
+
+
+@dataclass(frozen=True)
+class OnnxModel:
+    path: Path
+    session: object  # onnxruntime.InferenceSession
+    meta: dict
+    classes: tuple[str, ...]
+    thresholds_u8: dict[str, int]
+    min_area_px: dict[str, int]
+
+    @property
+    def version(self) -> str:
+        return str(self.meta.get("version", "?"))
+
+
+@dataclass(frozen=True)
+class _Decision:  # what regions_of / the CLI read of a class model
+    threshold: float
+    min_area_px: int
+
+
+def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
+    """Open an exported model and check its metadata against what this code feeds it.
+    Raises ValueError with a one-line reason (missing, not ONNX, wrong metadata or inputs)."""
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError("ONNX model file not found")
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.log_severity_level = 3
+    try:
+        sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+    except Exception as err:  # onnxruntime raises its own exception types
+        first = str(err).strip().splitlines()[0][:160] if str(err).strip() else type(err).__name__
+        raise ValueError(f"not a valid ONNX model ({first})") from None
+    raw = sess.get_modelmeta().custom_metadata_map.get("inspect_pipe")
+    if raw is None:
+        raise ValueError("ONNX model has no 'inspect_pipe' metadata")
+    try:
+        meta = json.loads(raw)
+    except json.JSONDecodeError:
+        raise ValueError("ONNX model metadata 'inspect_pipe' is not JSON") from None
+    if meta.get("format") != ONNX_FORMAT:
+        raise ValueError(f"ONNX model format {meta.get('format')!r}, expected {ONNX_FORMAT!r}")
+    inp = meta.get("input", {})
+    if (inp.get("layout"), inp.get("channels"), inp.get("multiple_of")) != ("NCHW", "RGB", MULTIPLE_OF) or \
+            len(inp.get("mean", ())) != 3 or len(inp.get("std", ())) != 3:
+        raise ValueError("ONNX model metadata: input must be NCHW RGB, multiple of 16, 3 means and stds")
+    ins, outs = sess.get_inputs(), sess.get_outputs()
+    if len(ins) != 1 or len(ins[0].shape) != 4 or ins[0].shape[1] != 3 or ins[0].name != inp.get("name"):
+        raise ValueError(f"ONNX model input {[(i.name, i.shape) for i in ins]} does not match its metadata")
+    classes = tuple(meta.get("classes", ()))
+    if not classes or len(outs) != 1 or len(outs[0].shape) != 4 or outs[0].shape[1] != len(classes):
+        raise ValueError(f"ONNX model output {[(o.name, o.shape) for o in outs]} does not match classes {classes}")
+    ops = meta.get("operating_points_u8", {})
+    if set(ops) != set(classes):
+        raise ValueError("ONNX model metadata: operating points do not cover its classes")
+    return OnnxModel(path, sess, meta, classes, {k: int(v) for k, v in ops.items()},
+                     {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes})
+
+
+def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
+    """8-bit BGR or grey (H, W[, 1|3]) -> (3, H, W) float32 network input."""
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    rgb = np.repeat(image[:, :, None], 3, axis=2) if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    inp = meta["input"]
+    x = rgb.astype(np.float32) * np.float32(inp.get("scale", 1 / 255))
+    x = (x - np.asarray(inp["mean"], np.float32)) / np.asarray(inp["std"], np.float32)
+    return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+def _run(model: OnnxModel, xs: np.ndarray) -> np.ndarray:
+    """(N, 3, H, W) input of any H, W -> (N, C, H, W) probabilities (reflect-padded to 16)."""
+    n, _, h, w = xs.shape
+    ph, pw = (-h) % MULTIPLE_OF, (-w) % MULTIPLE_OF
+    if ph or pw:
+        xs = np.pad(xs, ((0, 0), (0, 0), (0, ph), (0, pw)), mode="reflect")
+    name = model.session.get_inputs()[0].name
+    return model.session.run(None, {name: xs})[0][:, :, :h, :w]
+
+
+def _u8(p: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(p * np.float32(255)), 0, 255).astype(np.uint8)
+
+
+def _check(image: np.ndarray) -> None:
+    check_image(image)
+    h, w = image.shape[:2]
+    if min(h, w) < MIN_SIDE_PX:
+        raise ValueError(f"image {w}x{h} is too small for the network (sides >= {MIN_SIDE_PX} px)")
+
+
+def onnx_probabilities_u8(
+    image: np.ndarray, model: OnnxModel, *, tile_px: int = TILE_PX, margin_px: int = MARGIN_PX,
+    whole_max_px: int = WHOLE_MAX_PX,
+) -> dict[str, np.ndarray]:
+    """Per-class probability maps (H, W) uint8 of one image. Images above ``whole_max_px`` pixels
+    run in tiles of ``tile_px`` with ``margin_px`` overlap on each side (tile origins on the
+    16 px grid), so memory is bounded by the tile size."""
+    _check(image)
+    if tile_px % MULTIPLE_OF or margin_px % MULTIPLE_OF:
+        raise ValueError(f"tile and margin must be multiples of {MULTIPLE_OF} px")
+    h, w = image.shape[:2]
+    if h * w <= whole_max_px:
+        p = _run(model, _prepare(image, model.meta)[None])[0]
+        return {k: _u8(p[i]) for i, k in enumerate(model.classes)}
+    out = {k: np.zeros((h, w), np.uint8) for k in model.classes}
+    for y0 in range(0, h, tile_px):
+        for x0 in range(0, w, tile_px):
+            y1, x1 = min(y0 + tile_px, h), min(x0 + tile_px, w)
+            ty0, tx0 = max(y0 - margin_px, 0), max(x0 - margin_px, 0)
+            ty1, tx1 = min(y1 + margin_px, h), min(x1 + margin_px, w)
+            p = _run(model, _prepare(np.ascontiguousarray(image[ty0:ty1, tx0:tx1]), model.meta)[None])[0]
+            for i, k in enumerate(model.classes):
+                out[k][y0:y1, x0:x1] = _u8(p[i, y0 - ty0:y1 - ty0, x0 - tx0:x1 - tx0])
+    return out
+
+
+def _decide(prob_u8: np.ndarray, threshold_u8: int, min_area_px: int):
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((prob_u8 >= threshold_u8).astype(np.uint8), connectivity=8,
+                                                           ltype=cv2.CV_32S)
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
+    keep[0] = False
+    return keep[labels], labels, stats, np.flatnonzero(keep)
+
+
+def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds) -> Detection:
+    h, w = next(iter(probs.values())).shape
+    mask = np.zeros((h, w), bool)
+    regions: list[Region] = []
+    for k in kinds:
+        m, labels, stats, ids = _decide(probs[k], model.thresholds_u8[k], model.min_area_px[k])
+        mask |= m
+        regions += regions_of(k, probs[k], labels, stats, ids)
+    prob = probs[kinds[0]].copy() if len(kinds) == 1 else np.maximum.reduce([probs[k] for k in kinds])
+    return Detection(prob, mask, {k: probs[k] for k in kinds}, tuple(regions))
+
+
+def _check_kinds(model: OnnxModel, kinds) -> None:
+    for k in kinds:
+        if k not in model.classes:
+            raise ValueError(f"ONNX model has no class {k!r} (has {', '.join(model.classes)})")
+
+
+def detect_onnx(image: np.ndarray, model: OnnxModel, *, kinds=("corrosion", "crack"), tile_px: int = TILE_PX) -> Detection:
+    """Like :func:`detect` of the saliency engine, with the learned network. Grey images are
+    accepted for every class (replicated to RGB). Raises ValueError for an unusable image."""
+    _check_kinds(model, kinds)
+    return _detection(onnx_probabilities_u8(image, model, tile_px=tile_px), model, kinds)
+
+
+def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("corrosion", "crack"),
+                      batch: int = 4) -> list[Detection]:
+    """Detections for a sweep's frames: frames of equal size (up to ``WHOLE_MAX_PX``) run
+    ``batch`` at a time through one session call; others as with :func:`detect_onnx`."""
+    _check_kinds(model, kinds)
+    for im in images:
+        _check(im)
+    out: list[Detection | None] = [None] * len(images)
+    groups: dict[tuple, list[int]] = {}
+    for i, im in enumerate(images):
+        if im.shape[0] * im.shape[1] <= WHOLE_MAX_PX:
+            groups.setdefault(im.shape, []).append(i)
+        else:
+            out[i] = detect_onnx(im, model, kinds=kinds)
+    for idx in groups.values():
+        for s in range(0, len(idx), batch):
+            part = idx[s:s + batch]
+            p = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]))
+            for j, i in enumerate(part):
+                out[i] = _detection({k: _u8(p[j, c]) for c, k in enumerate(model.classes)}, model, kinds)
+    return out  # type: ignore[return-value]
+
+
+def default_onnx_path() -> Path:
+    return Path(__file__).parent / "models" / "defects_unet_v1.onnx"

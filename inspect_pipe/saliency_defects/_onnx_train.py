@@ -1,0 +1,346 @@
+"""Training of the learned segmentation engine (PyTorch, CPU) and its ONNX export.
+
+Only ``inspect-pipe detect train --engine onnx`` and ``tools/train_onnx.py`` import this module;
+inference (``_onnx_detect``) needs onnxruntime only. Install with ``pip install -e .[train]``.
+
+Network: a compact U-Net (4 poolings, widths 8-16-32-64-96, bilinear up-sampling + one 3x3
+convolution per decoder level, about 0.34 M parameters), RGB in, one sigmoid map per class out
+(corrosion, crack, surface). Each data set labels one class only, so the loss of a sample is taken
+on its own class's channel (the other channels are not supervised by that sample).
+
+Data: the 'train' part of each set (``_datasets.split_of``); of it, the images with
+``sha1("val:<set>/<stem>") % 5 == 0`` are the validation part (early stopping, the operating
+points); the 'eval' part is never read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ._datasets import SPLIT_RULE, labelled_set
+from ._metrics import best_f, tolerance_counts
+from ._onnx_detect import (
+    CLASSES, INPUT_MEAN, INPUT_STD, LICENCE, MIN_AREA_PX, MIN_SIDE_PX, MULTIPLE_OF, ONNX_FORMAT, TOL_PX,
+)
+
+VAL_RULE = 'val if int(sha1("val:<set>/<stem>").hexdigest(), 16) % 5 == 0 (within the train part)'
+SET_OF_CLASS = {"corrosion": "vt_corrosion_cs", "crack": "crackforest", "surface": "sd_saliency_900"}
+
+
+def is_val(set_name: str, stem: str) -> bool:
+    return int(hashlib.sha1(f"val:{set_name}/{stem}".encode()).hexdigest(), 16) % 5 == 0
+
+
+@dataclass(frozen=True)
+class OnnxTrainConfig:
+    seed: int = 0
+    crop_px: int = 128
+    per_class_batch: int = 4  # crops of each class per step
+    max_steps: int = 480
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    val_every: int = 120
+    patience: int = 3  # validations without improvement before stopping
+    time_budget_s: float = 43 * 60
+    threads: int = 2
+    crack_centre_p: float = 0.6  # share of crack crops centred on a crack pixel
+    widths: tuple[int, ...] = (8, 16, 32, 64, 96)
+
+
+# ----------------------------------------------------------------------------- network
+
+
+def build_net(widths=(8, 16, 32, 64, 96), n_out: int = len(CLASSES)):
+    import torch
+    from torch import nn
+
+    def block(cin, cout, n=2):
+        layers = []
+        for i in range(n):
+            layers += [nn.Conv2d(cin if i == 0 else cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)]
+        return nn.Sequential(*layers)
+
+    class UNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            w = widths
+            self.enc = nn.ModuleList([block(3, w[0])] + [block(w[i - 1], w[i]) for i in range(1, len(w))])
+            self.dec = nn.ModuleList([block(w[i + 1] + w[i], w[i], n=1) for i in range(len(w) - 1)])
+            self.head = nn.Conv2d(w[0], n_out, 1)
+
+        def forward(self, x):
+            skips = []
+            for i, e in enumerate(self.enc):
+                x = e(x)
+                if i < len(self.enc) - 1:
+                    skips.append(x)
+                    x = nn.functional.max_pool2d(x, 2)
+            for i in reversed(range(len(self.dec))):
+                x = nn.functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+                x = self.dec[i](torch.cat([x, skips[i]], 1))
+            return torch.sigmoid(self.head(x))
+
+    return UNet()
+
+
+# ----------------------------------------------------------------------------- data
+
+
+@dataclass
+class _Item:
+    cls: str
+    stem: str
+    rgb: np.ndarray  # (H, W, 3) uint8
+    gt: np.ndarray  # (H, W) bool
+    pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))  # (n, 2) y, x of GT pixels
+
+
+def _rgb(img: np.ndarray) -> np.ndarray:
+    if img.ndim == 2:
+        return np.repeat(img[:, :, None], 3, axis=2)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def load_parts(root: Path, classes=CLASSES) -> tuple[dict[str, list[_Item]], dict[str, list[_Item]], dict]:
+    """(train items, validation items, data record) per class, from ``root/<set>``."""
+    train, val, record = {}, {}, {}
+    for c in classes:
+        set_name = SET_OF_CLASS[c]
+        items = labelled_set(Path(root) / set_name, split="train")
+        tr, va = [], []
+        for it in items:
+            img, gt = it.load()
+            x = _Item(c, it.stem, _rgb(img), gt.astype(bool))
+            if is_val(set_name, it.stem):
+                va.append(x)
+            else:
+                x.pos = np.argwhere(x.gt).astype(np.int32)
+                tr.append(x)
+        train[c], val[c] = tr, va
+        record[c] = {"set": set_name, "split_rule": SPLIT_RULE, "val_rule": VAL_RULE,
+                     "n_train": len(tr), "n_val": len(va), "val_stems": [v.stem for v in va]}
+    return train, val, record
+
+
+def _crop(item: _Item, size: int, rng: np.random.Generator, centre_p: float) -> tuple[np.ndarray, np.ndarray]:
+    h, w = item.gt.shape
+    if h < size or w < size:  # pad small images by reflection
+        py, px = max(0, size - h), max(0, size - w)
+        rgb = cv2.copyMakeBorder(item.rgb, 0, py, 0, px, cv2.BORDER_REFLECT_101)
+        gt = cv2.copyMakeBorder(item.gt.astype(np.uint8), 0, py, 0, px, cv2.BORDER_REFLECT_101).astype(bool)
+        h, w = gt.shape
+    else:
+        rgb, gt = item.rgb, item.gt
+    if len(item.pos) and rng.random() < centre_p:
+        y, x = item.pos[rng.integers(len(item.pos))]
+        y0 = int(np.clip(y - rng.integers(size), 0, h - size))
+        x0 = int(np.clip(x - rng.integers(size), 0, w - size))
+    else:
+        y0, x0 = int(rng.integers(h - size + 1)), int(rng.integers(w - size + 1))
+    return rgb[y0:y0 + size, x0:x0 + size], gt[y0:y0 + size, x0:x0 + size]
+
+
+def _augment(rgb: np.ndarray, gt: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Flips, 90-degree turns, brightness / contrast / gamma; hue is kept (rust is a colour)."""
+    k = int(rng.integers(4))
+    rgb, gt = np.rot90(rgb, k), np.rot90(gt, k)
+    if rng.random() < 0.5:
+        rgb, gt = rgb[:, ::-1], gt[:, ::-1]
+    x = rgb.astype(np.float32) / 255.0
+    x = x ** float(np.exp(rng.normal(0, 0.2)))
+    m = x.mean()
+    x = (x - m) * float(rng.uniform(0.75, 1.3)) + m * float(rng.uniform(0.8, 1.2))
+    x = x * rng.uniform(0.93, 1.07, size=3).astype(np.float32)  # white balance
+    x = x + rng.normal(0, rng.uniform(0, 0.02), size=x.shape).astype(np.float32)
+    return np.clip(x, 0, 1), np.ascontiguousarray(gt)
+
+
+def _normalise(x01: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float RGB in [0, 1] -> (3, H, W) network input."""
+    return ((x01 - np.asarray(INPUT_MEAN, np.float32)) / np.asarray(INPUT_STD, np.float32)).transpose(2, 0, 1)
+
+
+def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.Generator):
+    xs, ys, cs = [], [], []
+    for ci, c in enumerate(CLASSES):
+        if not train.get(c):
+            continue
+        for _ in range(cfg.per_class_batch):
+            it = train[c][int(rng.integers(len(train[c])))]
+            rgb, gt = _crop(it, cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
+            x, g = _augment(rgb, gt, rng)
+            if c == "crack":  # 1-px labels of a 2-px-tolerance protocol: learn a 3-px wide line
+                g = cv2.dilate(g.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            xs.append(_normalise(x))
+            ys.append(g.astype(np.float32))
+            cs.append(ci)
+    return np.stack(xs), np.stack(ys), np.asarray(cs)
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _predict(net, rgb: np.ndarray) -> np.ndarray:
+    """(C, H, W) float probabilities for one whole image (reflect-padded to MULTIPLE_OF)."""
+    import torch
+
+    h, w = rgb.shape[:2]
+    H, W = -(-h // MULTIPLE_OF) * MULTIPLE_OF, -(-w // MULTIPLE_OF) * MULTIPLE_OF
+    x = cv2.copyMakeBorder(rgb, 0, H - h, 0, W - w, cv2.BORDER_REFLECT_101).astype(np.float32) / 255.0
+    with torch.no_grad():
+        p = net(torch.from_numpy(_normalise(x)[None]))[0].numpy()
+    return p[:, :h, :w]
+
+
+def validate(net, val: dict[str, list[_Item]]) -> dict[str, dict]:
+    """Per class: best F over thresholds on the validation part (crack with the 2 px tolerance)
+    and the threshold (0..255) achieving it."""
+    net.eval()
+    out = {}
+    for ci, c in enumerate(CLASSES):
+        if not val.get(c):
+            continue
+        counts = None
+        for it in val[c]:
+            p = _predict(net, it.rgb)[ci]
+            k = tolerance_counts(p, it.gt, TOL_PX[c])
+            counts = k if counts is None else counts + k
+        f, t = best_f(counts)
+        out[c] = {"F": round(f, 4), "threshold_u8": t}
+    net.train()
+    return out
+
+
+# ----------------------------------------------------------------------------- training
+
+
+def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log: Callable[[str], None] = print) -> dict:
+    """Train on ``root`` (a defects folder) and keep the best checkpoint at ``ckpt`` (.pt).
+    Stops at max_steps, after ``patience`` validations without improvement, or at the time
+    budget. Returns the best validation record."""
+    import torch
+
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    cv2.setNumThreads(1)
+    rng = np.random.default_rng(cfg.seed)
+    t0 = time.monotonic()
+    train_items, val_items, record = load_parts(root)
+    log(f"data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
+        + f" ({time.monotonic() - t0:.0f} s)")
+    net = build_net(cfg.widths)
+    n_par = sum(p.numel() for p in net.parameters())
+    log(f"net: {n_par} parameters")
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    warm = 100
+
+    def lr_at(step):
+        if step < warm:
+            return cfg.lr * (step + 1) / warm
+        return cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warm) / max(1, cfg.max_steps - warm))))
+
+    pos_weight = {"corrosion": 1.0, "crack": 3.0, "surface": 1.0}
+    best, best_score, bad, step, loss_avg = None, -1.0, 0, 0, None
+    reason = "max_steps"
+    while step < cfg.max_steps:
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step)
+        x, y, c = _batch(train_items, cfg, rng)
+        xt, yt = torch.from_numpy(x), torch.from_numpy(y)
+        p = net(xt)
+        p = p[torch.arange(len(c)), torch.from_numpy(c)]  # each sample's own class channel
+        p = p.clamp(1e-6, 1 - 1e-6)
+        w = torch.tensor([pos_weight[CLASSES[i]] for i in c])[:, None, None]
+        bce = -(w * yt * torch.log(p) + (1 - yt) * torch.log(1 - p)).mean()
+        inter = (p * yt).sum((1, 2))
+        dice = 1 - (2 * inter + 1) / (p.sum((1, 2)) + yt.sum((1, 2)) + 1)
+        loss = bce + 0.5 * dice.mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        lv = loss.item()
+        loss_avg = lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
+        if step % 50 == 0:
+            log(f"step {step} loss {loss_avg:.4f} lr {lr_at(step):.2e} ({time.monotonic() - t0:.0f} s)")
+        over_time = time.monotonic() - t0 > cfg.time_budget_s
+        if step % cfg.val_every == 0 or step == cfg.max_steps or over_time:
+            v = validate(net, val_items)
+            score = float(np.mean([r["F"] for r in v.values()]))
+            log(f"val step {step}: " + ", ".join(f"{k} F {r['F']:.3f} @ {r['threshold_u8']}" for k, r in v.items())
+                + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
+            if score > best_score:
+                best_score, bad = score, 0
+                best = {"step": step, "val": v, "mean_F": round(score, 4)}
+                torch.save({"state": net.state_dict(), "best": best, "record": record, "config": asdict(cfg),
+                            "n_params": n_par}, ckpt)
+            else:
+                bad += 1
+            if bad >= cfg.patience:
+                reason = f"early stop ({cfg.patience} validations without improvement)"
+                break
+            if over_time:
+                reason = f"time budget {cfg.time_budget_s:.0f} s"
+                break
+    log(f"stopped at step {step}: {reason}; best step {best['step']} mean val F {best['mean_F']:.4f} "
+        f"({time.monotonic() - t0:.0f} s)")
+    ck = torch.load(ckpt, weights_only=False)
+    ck["stopped"] = {"step": step, "reason": reason, "wall_s": round(time.monotonic() - t0)}
+    torch.save(ck, ckpt)
+    return best
+
+
+# ----------------------------------------------------------------------------- export
+
+
+def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str], None] = print) -> None:
+    """Write the checkpoint's network as ONNX (dynamic H, W) with the metadata the inference
+    checks: input normalisation, class names, operating points, data, split, metrics, licence."""
+    import onnx
+    import torch
+
+    ck = torch.load(ckpt, weights_only=False)
+    cfg = ck["config"]
+    net = build_net(tuple(cfg["widths"]))
+    net.load_state_dict(ck["state"])
+    net.eval()
+    dummy = torch.zeros(1, 3, 64, 64)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.onnx.export(
+        net, (dummy,), str(out), input_names=["image"], output_names=["prob"], opset_version=17,
+        dynamic_axes={"image": {0: "n", 2: "h", 3: "w"}, "prob": {0: "n", 2: "h", 3: "w"}}, dynamo=False,
+    )
+    m = onnx.load(str(out))
+    best = ck["best"]
+    meta = {
+        "format": ONNX_FORMAT,
+        "version": version,
+        "classes": list(CLASSES),
+        "input": {"name": "image", "layout": "NCHW", "channels": "RGB", "scale": 1 / 255,
+                  "mean": list(INPUT_MEAN), "std": list(INPUT_STD), "multiple_of": MULTIPLE_OF,
+                  "min_side_px": MIN_SIDE_PX, "grey": "replicated to 3 channels"},
+        "output": {"name": "prob", "meaning": "P(defect of class c), sigmoid, one channel per class"},
+        "operating_points_u8": {c: r["threshold_u8"] for c, r in best["val"].items()},
+        "min_area_px": dict(MIN_AREA_PX),
+        "data": ck["record"],
+        "metrics": {"validation": best["val"], "tolerance_px": dict(TOL_PX), "best_step": best["step"],
+                    "stopped": ck.get("stopped", {})},
+        "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
+                     "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx"},
+        "licence": LICENCE,
+    }
+    del m.metadata_props[:]
+    p = m.metadata_props.add()
+    p.key, p.value = "inspect_pipe", json.dumps(meta)
+    m.doc_string = "inspect_pipe learned defect segmentation (compact U-Net); see metadata 'inspect_pipe'"
+    onnx.save(m, str(out))
+    log(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
