@@ -28,7 +28,9 @@ CSV_COLUMNS = ("id", "class", "status", "note", "u_m", "v_m", "area_m2", "length
 class RegisterParams:
     merge_gap_m: float = 0.03  # fragments of one class closer than this are one defect
     min_area_m2: float = 2e-4  # corrosion smaller than 1.4 x 1.4 cm is speckle
-    min_crack_length_m: float = 0.02
+    min_crack_length_m: float = 0.05
+    max_crack_width_m: float = 0.01  # mean width (area / length): wider is not a crack
+    edge_margin_m: float = 0.02  # detections this close to the mosaic's edge are seam and border artefacts
     frame_vote_min: int = 2  # keyframe evidence outside the mosaic's own decision: at least 2 frames ...
     frame_vote_fraction: float = 0.5  # ... and half of the keyframes that see the pixel
     match_m: float = 0.05  # a previous entry is the same defect if centroids are this close (same class)
@@ -187,6 +189,9 @@ def build_defects(
     defects: list[Defect] = []
     keyframe_masks = keyframe_masks or {}
     foot = [(v, _footprint_poly(v)) for v in views]
+    if valid is not None:
+        e = max(1, int(round(params.edge_margin_m / wall.m_per_px)))
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * e + 1, 2 * e + 1), np.uint8), borderValue=0) > 0
     for c in sorted(masks):
         m = masks[c] if valid is None else masks[c] & valid
         if not m.any():
@@ -208,7 +213,7 @@ def build_defects(
             length = None
             if c == "crack":
                 length = _crack_length_px(sub) * math.sqrt(scale)
-                if length < params.min_crack_length_m:
+                if length < params.min_crack_length_m or area_m2 / length > params.max_crack_width_m:
                     continue
             elif area_m2 < params.min_area_m2:
                 continue

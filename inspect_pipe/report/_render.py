@@ -37,9 +37,10 @@ def overlay_image(report, max_w: int = 1600) -> np.ndarray:
     return small
 
 
-def crop_images(report, d) -> tuple[np.ndarray, np.ndarray]:
-    """(crop around the defect with its outline, context thumbnail with a box)."""
-    img = _bgr(report.inputs.mosaic)
+def crop_images(report, d, img: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(crop around the defect with its outline, context thumbnail with a box); ``img``: the
+    mosaic as BGR on a light background (computed when not given)."""
+    img = _bgr(report.inputs.mosaic) if img is None else img
     H, W = img.shape[:2]
     x, y, w, h = d.bbox_mosaic_xywh
     m = max(16, int(0.25 * max(w, h)))
@@ -144,9 +145,10 @@ def render_all(report, out: Path, *, log=print) -> dict:
     write_png(a / "overlay.png", overlay_image(report))
     write_png(a / "coverage.png", coverage_image(report))
     defects = []
+    bgr = _bgr(report.inputs.mosaic)
     for d in report.defects:
         if d.redetected and d.polygon_mosaic_px:
-            crop, ctx = crop_images(report, d)
+            crop, ctx = crop_images(report, d, bgr)
             write_png(a / "crops" / f"{d.id}.png", crop)
             write_png(a / "crops" / f"{d.id}_context.png", ctx)
             d = d.__class__(**{**d.__dict__, "crop": f"assets/crops/{d.id}.png", "context": f"assets/crops/{d.id}_context.png"})

@@ -56,7 +56,7 @@ def make_run(root: Path, *, survey: dict | None = None) -> RunStore:
     x, y, w, h = CORROSION
     corr[y:y + h, x:x + w] = 255
     crack = np.zeros((270, 520), np.uint8)
-    cv2.line(crack, CRACK[0], CRACK[1], 255, 2)
+    cv2.line(crack, CRACK[0], CRACK[1], 255, 1)  # 5 mm wide
     store.save_class_map("mosaic", "corrosion", "mask", corr)
     store.save_class_map("mosaic", "corrosion", "prob", np.where(corr > 0, 240, 10).astype(np.uint8))
     store.save_class_map("mosaic", "crack", "mask", crack)
