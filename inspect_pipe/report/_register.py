@@ -29,7 +29,7 @@ class RegisterParams:
     merge_gap_m: float = 0.03  # fragments of one class closer than this are one defect
     min_area_m2: float = 2e-4  # corrosion smaller than 1.4 x 1.4 cm is speckle
     min_crack_length_m: float = 0.05
-    max_crack_width_m: float = 0.01  # mean width (area / length): wider is not a crack
+    max_crack_width_m: float = 0.02  # mean detected width (area / length): wider is a blob, not a crack
     edge_margin_m: float = 0.02  # detections this close to the mosaic's edge are seam and border artefacts
     frame_vote_min: int = 2  # keyframe evidence outside the mosaic's own decision: at least 2 frames ...
     frame_vote_fraction: float = 0.5  # ... and half of the keyframes that see the pixel
