@@ -9,20 +9,24 @@ from pathlib import Path
 import typer
 
 from cli._common import fail, one_line_errors
-from inspect_pipe.mosaic import DETECTORS, FolderSource, MosaicParams, RegisterParams, run_mosaic
+from inspect_pipe.mosaic import DETECTORS, FolderSource, MosaicParams, RegisterParams, is_sweep, run_mosaic, run_mosaic_sweep
 
 HELP = """Mosaic a sweep (or a folder of overlapping images, sorted by name) into one seamless image.
 
 Writes OUT/mosaic.png (BGRA: alpha marks covered wall), OUT/mosaic.json (per frame: the 3x3
 homography H from frame pixels to mosaic pixels; frames that could not be placed under
 "unplaced" with the reason) and, if the sweep falls into disconnected groups, one
-OUT/mosaic_group<k>.png per further group.
+OUT/mosaic_group<k>.png per further group. A sweep (a directory with sweep.json, written by
+`capture` or `fly --sweep`) is undistorted and rectified with its camera model, and mosaic.json
+also gets m_per_px and wall_from_mosaic (mosaic pixel -> wall metres u, v).
 
 Examples:
 
   inspect-pipe mosaic ../shared/data/mosaic/synth_rust_sweep/frames -o out/rust
 
   inspect-pipe mosaic frames/ -o out/m --focal-px 618   # calibrated camera: metric rectification
+
+  inspect-pipe mosaic out/demo/sweep -o out/demo/mosaic   # a sweep: metric, placed on the wall
 
 Exit 0 on success; 2 on bad input (empty folder, unreadable or truncated images, images of
 different sizes, no overlap), after writing whatever could be mosaicked.
@@ -57,13 +61,15 @@ def mosaic(
         raise fail(f"--detector {detector!r}: unknown; choose one of {', '.join(DETECTORS)}")
     if focal_px < 0:
         raise fail(f"--focal-px {focal_px}: must be positive")
-    source = FolderSource(input)
     params = MosaicParams(register=RegisterParams(detector=detector, focal_px=focal_px or None, seed=seed))
     progress = _Progress(not quiet)
     t0 = time.monotonic()
-    result = run_mosaic(source, out, params=params, progress=progress)
+    if is_sweep(input):  # camera model and vehicle states come with it
+        result = run_mosaic_sweep(input, out, params=params, progress=progress)
+    else:
+        result = run_mosaic(FolderSource(input), out, params=params, progress=progress)
     progress.close()
-    n = len(source)
+    n = result.n_input
     unplaced = len(result.registration.unplaced)
     typer.echo(
         f"{out / 'mosaic.json'}: {result.n_placed}/{n} frames placed in {len(result.images)} mosaic(s), "

@@ -9,11 +9,13 @@ from ._blend import BlendParams, render
 from ._features import DETECTORS, detect_features
 from ._homography import MatchParams, match_pair
 from ._io import FolderSource, read_image
-from ._mosaic import FORMAT, MosaicOutput, MosaicParams, run_mosaic
+from ._mosaic import FORMAT, MosaicOutput, MosaicParams, run_mosaic, run_mosaic_sweep
+from ._sweep_input import SweepSource, WallGeometry, is_sweep, wall_geometry
 from ._register import FrameError, FrameSource, Group, Registration, RegisterParams, register
 
 __all__ = [
     "AlignParams", "BlendParams", "DETECTORS", "FORMAT", "FolderSource", "FrameError", "FrameSource",
     "Group", "MatchParams", "MosaicOutput", "MosaicParams", "Registration", "RegisterParams",
-    "detect_features", "match_pair", "read_image", "register", "render", "run_mosaic",
+    "SweepSource", "WallGeometry", "detect_features", "is_sweep", "match_pair", "read_image", "register",
+    "render", "run_mosaic", "run_mosaic_sweep", "wall_geometry",
 ]

@@ -13,6 +13,7 @@ import inspect_pipe
 from ._blend import BlendParams, CanvasTooLarge, render
 from ._io import write_json, write_png
 from ._register import FrameSource, Registration, RegisterParams, register
+from ._sweep_input import SweepSource, wall_geometry
 
 FORMAT = "inspect_pipe.mosaic/1"
 
@@ -33,6 +34,7 @@ class MosaicOutput:
     H: dict[int, np.ndarray]  # frame -> mosaic px of its group's image
     group_of: dict[int, int]
     problems: list[str]  # bad-input findings, one line each (first is the headline)
+    n_input: int = 0
 
     @property
     def n_placed(self) -> int:
@@ -65,7 +67,13 @@ def run_mosaic(
         if progress:
             progress("blending", g + 1, len(reg.groups))
         try:
-            mosaic, Hc = render(source.load, group.H, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
+            mosaic, Hc = render(source.load, {f: group.H[f] for f in group.keyframes}, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
+            k0 = group.keyframes[0]
+            shift = Hc[k0] @ np.linalg.inv(group.H[k0])  # the canvas offset, for frames not blended
+            for f in group.frames:
+                if f not in Hc:
+                    h = shift @ group.H[f]
+                    Hc[f] = h / h[2, 2]
         except CanvasTooLarge as err:
             for f in group.frames:
                 unplaced[f] = f"group layout implausible: {err}"
@@ -79,7 +87,7 @@ def run_mosaic(
             group_of[f] = k
         groups_json.append({
             "id": k, "image": path.name, "size_wh": [int(mosaic.shape[1]), int(mosaic.shape[0])],
-            "n_frames": len(group.frames), "rms_px": round(group.rms_px, 4),
+            "n_frames": len(group.frames), "n_keyframes": len(group.keyframes), "rms_px": round(group.rms_px, 4),
         })
     single_frame = len(source) == 1 and 0 in reg.n_features  # readable, nothing to register it to
     if single_frame:  # one image is its own mosaic
@@ -115,7 +123,7 @@ def run_mosaic(
     write_json(out_dir / "mosaic.json", doc)
 
     problems = _problems(source, unplaced, H_all, single_frame)
-    return MosaicOutput(out_dir, images, reg, H_all, group_of, problems)
+    return MosaicOutput(out_dir, images, reg, H_all, group_of, problems, len(source))
 
 
 _BAD_INPUT_MARKS = ("unreadable", "truncated", "not a ", "empty file", "cannot read", "unsupported", "size ")
@@ -133,3 +141,40 @@ def _problems(source: FrameSource, unplaced: dict[int, str], H: dict[int, np.nda
     if not H and len(source) > 1:
         out.append(f"no two of the {len(source)} images overlap enough to register; nothing mosaicked")
     return out
+
+
+def run_mosaic_sweep(
+    sweep_dir: Path,
+    out_dir: Path,
+    *,
+    params: MosaicParams = MosaicParams(),
+    progress: Callable[[str, int, int], None] | None = None,
+) -> MosaicOutput:
+    """Mosaic a sweep: frames undistorted and rectified with the sweep's camera, and
+    ``m_per_px`` / ``wall_from_mosaic`` added to mosaic.json (mosaic.png's frames only)."""
+    from dataclasses import replace
+
+    from inspect_pipe.capture import read_sweep
+
+    sweep = read_sweep(sweep_dir)
+    source = SweepSource(sweep)
+    reg_params = replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px)
+    params = replace(params, register=reg_params)
+    extra: dict = {"input": {"kind": "sweep", "path": str(sweep_dir), "complete": sweep.complete, "n_frames": len(sweep)}}
+    if sweep.problems:
+        extra["input"]["skipped"] = [str(p) for p in sweep.problems]
+    result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)
+    main = {f: h for f, h in result.H.items() if result.group_of[f] == 0}
+    geom = wall_geometry(sweep, main, source.focal_px, source.principal_px) if main else None
+    if geom is not None:
+        import json
+
+        doc = json.loads((out_dir / "mosaic.json").read_text())
+        doc.update(geom.to_json())
+        for f in doc["frames"]:
+            rec = sweep.frames[f["index"]]
+            f["t_s"] = rec.t_s
+        write_json(out_dir / "mosaic.json", doc)
+    if sweep.problems:
+        result.problems.append(str(sweep.problems[0]))
+    return result

@@ -37,15 +37,31 @@ class FrameSource(Protocol):
         ...
 
 
+class MotionPrior(Protocol):
+    """Optional extras of a source that knows where the camera was (a sweep with vehicle states)."""
+
+    def skip_reason(self, i: int) -> str:
+        """Non-empty if frame ``i`` is not part of the wall survey (e.g. taken while landed)."""
+        ...
+
+    def centre_px(self, i: int) -> np.ndarray | None:
+        """Predicted frame-centre position, in pixels of a common wall-aligned frame, or None."""
+        ...
+
+    tolerance_px: float  # how far a registration may disagree with the prediction
+
+
 @dataclass(frozen=True)
 class RegisterParams:
     detector: str = "sift"
     max_features: int = 1500
     focal_px: float | None = None  # known camera focal length: enables metric rectification
+    principal_px: tuple[float, float] | None = None  # principal point (default: the frame centre)
     temporal_window: int = 2
     layout_rounds: int = 2
     min_overlap: float = 0.15
     candidates_per_frame: int = 2
+    keyframe_step: float = 0.05  # of the frame diagonal: closer frames are attached, not aligned
     bridge_budget: int = 400  # unguided matches allowed for joining disconnected groups
     pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
     match: MatchParams = MatchParams()
@@ -61,6 +77,11 @@ class Group:
     frames: list[int]
     H: dict[int, np.ndarray]
     rms_px: float
+    keyframes: list[int] = field(default_factory=list)  # the frames registered globally and blended
+
+    def __post_init__(self) -> None:
+        if not self.keyframes:
+            self.keyframes = list(self.frames)
 
 
 @dataclass
@@ -121,6 +142,57 @@ def _initial_layout(comp: list[int], edges: list[PairMatch]) -> dict[int, np.nda
     return H
 
 
+def _select_keyframes(
+    valid: list[int], accepted: list[PairMatch], size_wh: tuple[int, int], step: float
+) -> tuple[list[int], dict[int, tuple[int, np.ndarray]], dict[tuple[int, int], np.ndarray]]:
+    """Greedy keyframes along the chain of neighbour pairs: a frame becomes a keyframe when its
+    centre is more than ``step`` of the diagonal from the last keyframe's (or the chain breaks).
+    Returns (keyframes, attached frame -> (keyframe, H frame px -> keyframe px), priors for pairs
+    of consecutive keyframes). Thinning is skipped (nothing attached) unless it removes >= 30 %."""
+    pair_h = {(e.i, e.j): e.H for e in accepted}
+    diag = float(np.hypot(*size_wh))
+    c = np.array([size_wh[0] / 2, size_wh[1] / 2, 1.0])
+    keys = [valid[0]]
+    attach: dict[int, tuple[int, np.ndarray]] = {}
+    priors: dict[tuple[int, int], np.ndarray] = {}
+    H_prev_key = np.eye(3)  # previous frame px -> current keyframe px
+    for a, b in zip(valid, valid[1:]):
+        H_ab = pair_h.get((a, b))
+        if H_ab is None:
+            keys.append(b)
+            H_prev_key = np.eye(3)
+            continue
+        H_b_key = H_prev_key @ np.linalg.inv(H_ab)
+        H_b_key /= H_b_key[2, 2]
+        p = H_b_key @ c
+        if np.linalg.norm(p[:2] / p[2] - c[:2]) > step * diag:
+            priors[(keys[-1], b)] = np.linalg.inv(H_b_key)  # keyframe px -> b px
+            keys.append(b)
+            H_prev_key = np.eye(3)
+        else:
+            attach[b] = (keys[-1], H_b_key)
+            H_prev_key = H_b_key
+    if len(attach) < 0.3 * len(valid):
+        return list(valid), {}, {}
+    return keys, attach, priors
+
+
+def _disagrees_with_motion(pair: PairMatch, prior, size_wh: tuple[int, int]) -> str:
+    """Reason if a pair's homography moves the frame centre far from what the vehicle's motion
+    predicts (false matches on a camera-fixed pattern, such as vignetting or the on-board light,
+    give the identity while the vehicle moved)."""
+    ci, cj = prior.centre_px(pair.i), prior.centre_px(pair.j)
+    if ci is None or cj is None:
+        return ""
+    c = np.array([size_wh[0] / 2, size_wh[1] / 2, 1.0])
+    p = np.linalg.inv(pair.H) @ c  # frame j's centre in frame i's pixels
+    seen = p[:2] / p[2] - c[:2]
+    predicted = cj - ci
+    if np.linalg.norm(seen - predicted) > prior.tolerance_px:
+        return f"disagrees with the vehicle's motion by {np.linalg.norm(seen - predicted):.0f} px"
+    return ""
+
+
 def _bridge_candidates(
     comps: list[list[int]], feats: dict[int, Features], tried: set[tuple[int, int]], budget: int,
     keyframes: int = 4, per_component: int = 24,
@@ -178,8 +250,13 @@ def register(
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
 
+    prior = source if hasattr(source, "centre_px") and hasattr(source, "skip_reason") else None
+
     def extract(i: int):
         """Load one frame and detect its features (runs in a worker thread; OpenCV releases the GIL)."""
+        why = prior.skip_reason(i) if prior is not None else ""
+        if why:
+            return i, why, None, None
         try:
             img = source.load(i)
         except FrameError as err:
@@ -214,7 +291,12 @@ def register(
     def one_pair(pair: tuple[int, int], priors: dict[tuple[int, int], np.ndarray]):
         i, j = pair
         pair_rng = np.random.default_rng([params.seed, i, j])  # same result whatever the thread order
-        return match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=pair_rng)
+        res = match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=pair_rng)
+        if res and prior is not None:
+            why = _disagrees_with_motion(res, prior, size_wh)
+            if why:
+                return PairFailure(i, j, why, res.n_matches)
+        return res
 
     def try_pairs(pairs: list[tuple[int, int]], priors: dict[tuple[int, int], np.ndarray]) -> None:
         tried.update(pairs)
@@ -226,6 +308,19 @@ def register(
 
     temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
     try_pairs(temporal, {})
+
+    # A slow vehicle at 10 Hz gives frames a few pixels apart: align and blend keyframes only,
+    # and attach the frames between them through their chain of neighbour homographies.
+    all_valid = valid
+    keys, attach, key_priors = _select_keyframes(valid, accepted, size_wh, params.keyframe_step)
+    chain_pairs: list[PairMatch] = []
+    if attach:
+        keyset = set(keys)
+        chain_pairs = [e for e in accepted if not (e.i in keyset and e.j in keyset)]
+        accepted[:] = [e for e in accepted if e.i in keyset and e.j in keyset]
+        valid = keys
+        key_temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
+        try_pairs([p for p in key_temporal if p not in tried], key_priors)
 
     def layout_rounds() -> None:
         for _round in range(params.layout_rounds):
@@ -283,10 +378,21 @@ def register(
                 dropped = True
             H_final = res.H
             if params.focal_px and len(comp) >= 5:
-                H_final, _ = rectify(res.H, size_wh, params.focal_px)
+                H_final, _ = rectify(res.H, size_wh, params.focal_px, params.principal_px)
             groups.append(Group(sorted(comp), H_final, res.rms_px))
         if not dropped:
             break
+
+    for g in groups:
+        extra = [f for f, (k, _) in attach.items() if k in g.H]
+        for f in extra:
+            k, H_f_k = attach[f]
+            h = g.H[k] @ H_f_k
+            g.H[f] = h / h[2, 2]
+        g.keyframes = sorted(g.frames)
+        g.frames = sorted(g.frames + extra)
+    valid = all_valid
+    edges = edges + chain_pairs
 
     placed = {f for g in groups for f in g.frames}
     reasons: dict[int, list[str]] = defaultdict(list)

@@ -60,3 +60,32 @@ def test_without_focal_length_gauge_keeps_mean_frame_scale(synthetic_sweep):
         J = h[:2, :2] * (h[2] @ c) - np.outer((h @ c)[:2], h[2, :2])
         scales.append(np.sqrt(abs(np.linalg.det(J))) / (h[2] @ c) ** 2)
     assert abs(np.mean(scales) - 1.0) < 0.01  # mosaic px = mean frame px: it neither shrinks nor grows
+
+
+def test_slow_sweep_aligns_keyframes_and_attaches_the_rest():
+    # GIVEN a slow sweep (3 px between frames, 1 % of the diagonal) over a synthetic wall
+    from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame, textured_wall
+
+    rng = np.random.default_rng(9)
+    path = SweepPath(passes=2, per_pass=40, step_px=3.0, row_px=110.0)
+    wall = textured_wall(600, 420, rng)
+    Hs = lawnmower_homographies(path, rng)
+    frames = [render_frame(wall, H, path.frame_wh) for H in Hs]
+
+    class Mem:
+        def __len__(self):
+            return len(frames)
+
+        def name(self, i):
+            return f"{i}"
+
+        def load(self, i):
+            return frames[i]
+
+    reg = register(Mem(), params=RegisterParams(focal_px=path.focal_px))
+    # THEN every frame is placed, but only a fraction went through global alignment
+    g = reg.groups[0]
+    assert len(g.frames) == len(Hs) and not reg.unplaced
+    assert len(g.keyframes) < 0.5 * len(Hs)
+    near, cross = misalignment(g.H, dict(enumerate(Hs)), path.frame_wh)
+    assert near.rmse_px < 0.5 and cross.rmse_px < 0.5 and cross.max_px < 3.0

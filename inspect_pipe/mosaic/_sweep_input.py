@@ -1,0 +1,169 @@
+"""Sweeps (``inspect_pipe.capture`` format) as mosaic input, and the mosaic-to-wall geometry.
+
+A sweep adds what a folder of images lacks: the camera's intrinsics (frames are undistorted
+before registration, and the mosaic is rectified to the wall plane) and the vehicle's state at
+each exposure. From those:
+
+- ``m_per_px``: metres of wall per mosaic pixel, from the focal length and the estimated distance
+  of the camera to the wall (front sonar, less the camera's forward offset on the body);
+- ``wall_from_mosaic``: the 3x3 map from mosaic pixels to wall metres (u right from the wall's left
+  edge, v up from the floor). Its scale is ``m_per_px``; its rotation and offset are fitted
+  robustly (Huber) between the frame centres in the mosaic and the wall points the vehicle's
+  position estimates put in front of the camera. Odometry drifts and the mosaic does not, so the
+  mosaic fixes the shape and odometry only places it; the residual is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ._io import read_image
+from ._register import FrameError
+
+
+class SweepSource:
+    """Frames of a sweep, undistorted with the sweep's camera model."""
+
+    SURVEY_STATES = ("flying", "descending")  # fsm states whose frames belong to the wall survey
+
+    def __init__(self, sweep, *, motion_tolerance_m: float = 0.35) -> None:
+        self.sweep = sweep
+        cam = sweep.meta.camera
+        self.K = np.asarray(cam.K, float)
+        self.dist = np.asarray(cam.dist, float).ravel()
+        self._maps = None
+        cam_t = np.asarray(sweep.meta.cam_to_body.t, float)
+        dists = [f.dist_front_m - cam_t[0] for f in sweep.frames if f.dist_front_m is not None]
+        # metres per frame pixel at the sweep's typical distance: converts odometry to pixels
+        self._m_per_px = float(np.median(dists)) / self.focal_px if dists else None
+        self.tolerance_px = motion_tolerance_m / self._m_per_px if self._m_per_px else float("inf")
+
+    def skip_reason(self, i: int) -> str:
+        fsm = self.sweep.frames[i].fsm
+        if fsm is not None and fsm not in self.SURVEY_STATES:
+            return f"taken while the vehicle was {fsm}: not part of the wall survey"
+        return ""
+
+    def centre_px(self, i: int) -> np.ndarray | None:
+        """Odometry's prediction of where the frame centre is on the wall, in frame pixels
+        (x right = -y world, y down = -z world)."""
+        f = self.sweep.frames[i]
+        if f.position_m is None or self._m_per_px is None:
+            return None
+        return np.array([-f.position_m[1], -f.position_m[2]]) / self._m_per_px
+
+    def __len__(self) -> int:
+        return len(self.sweep.frames)
+
+    def name(self, i: int) -> str:
+        return self.sweep.frames[i].image
+
+    def load(self, i: int) -> np.ndarray:
+        img = read_image(self.sweep.frames[i].image_path)
+        if not np.any(self.dist):
+            return img
+        h, w = img.shape[:2]
+        if self._maps is None or self._maps[0].shape[:2] != (h, w):
+            self._maps = cv2.initUndistortRectifyMap(self.K, self.dist, None, self.K, (w, h), cv2.CV_32FC1)
+        return cv2.remap(img, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    @property
+    def focal_px(self) -> float:
+        return float((self.K[0, 0] + self.K[1, 1]) / 2)
+
+    @property
+    def principal_px(self) -> tuple[float, float]:
+        return float(self.K[0, 2]), float(self.K[1, 2])
+
+
+@dataclass(frozen=True)
+class WallGeometry:
+    m_per_px: float
+    wall_from_mosaic: np.ndarray  # 3x3
+    rms_m: float  # residual between mosaic-placed frame centres and odometry
+    max_m: float
+    free_scale_m_per_px: float  # scale a free similarity fit would choose: a consistency check
+    n_frames: int
+
+    def to_json(self) -> dict:
+        return {
+            "m_per_px": self.m_per_px,
+            "wall_from_mosaic": self.wall_from_mosaic.tolist(),
+            "wall_fit": {
+                "method": "scale from focal length and wall distance; rotation and offset fitted (Huber) "
+                "between frame centres in the mosaic and the vehicle's position estimates",
+                "rms_m": round(self.rms_m, 4),
+                "max_m": round(self.max_m, 4),
+                "free_scale_m_per_px": self.free_scale_m_per_px,
+                "n_frames": self.n_frames,
+            },
+        }
+
+
+def _wall_width(meta) -> float | None:
+    if meta.wall_texture is not None and meta.wall_texture.wall_width_m:
+        return float(meta.wall_texture.wall_width_m)
+    sim = meta.simulation or {}
+    hold = sim.get("hold") if isinstance(sim, dict) else None
+    if isinstance(hold, dict) and isinstance(hold.get("width_m"), (int, float)):
+        return float(hold["width_m"])
+    width = (meta.survey or {}).get("wall_width_m")
+    return float(width) if isinstance(width, (int, float)) else None
+
+
+def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px: tuple[float, float]) -> WallGeometry | None:
+    """Mosaic -> wall map for the placed frames ``H`` (frame px -> mosaic px), or None when the
+    sweep carries no position or wall distance estimates."""
+    cam_t = np.asarray(sweep.meta.cam_to_body.t, float)
+    width = _wall_width(sweep.meta)
+    mos, wall, dists = [], [], []
+    c = np.array([principal_px[0], principal_px[1], 1.0])
+    for i, h in H.items():
+        f = sweep.frames[i]
+        if f.dist_front_m is not None:
+            dists.append(f.dist_front_m - cam_t[0])
+        if f.position_m is None:
+            continue
+        p = h @ c
+        mos.append(p[:2] / p[2])
+        y_cam = f.position_m[1] + cam_t[1]
+        z_cam = f.position_m[2] + cam_t[2]
+        wall.append(((width / 2 if width is not None else 0.0) - y_cam, z_cam))
+    if not dists or len(mos) < 3:
+        return None
+    m_per_px = float(np.mean(dists) / focal_px)
+    M, W = np.array(mos), np.array(wall)
+    F = np.diag([1.0, -1.0])  # mosaic rows run down, wall v runs up
+
+    def fit(weights: np.ndarray, scale: float | None):
+        wsum = weights.sum()
+        mc = (weights[:, None] * M).sum(0) / wsum
+        wc = (weights[:, None] * W).sum(0) / wsum
+        A = ((weights[:, None] * (F @ (W - wc).T).T).T @ (M - mc))  # cross-covariance
+        U, S, Vt = np.linalg.svd(A)
+        D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
+        R = U @ D @ Vt
+        if scale is None:
+            scale = float(np.trace(np.diag(S) @ D) / (weights * ((M - mc) ** 2).sum(1)).sum())
+        L = scale * F @ R
+        t = wc - L @ mc
+        return L, t, scale
+
+    w = np.ones(len(M))
+    for _ in range(10):  # iteratively reweighted least squares, Huber at 5 cm
+        L, t, _ = fit(w, m_per_px)
+        r = np.linalg.norm((M @ L.T) + t - W, axis=1)
+        w = np.where(r <= 0.05, 1.0, 0.05 / np.maximum(r, 1e-12))
+    _, _, free = fit(np.ones(len(M)), None)
+    r = np.linalg.norm((M @ L.T) + t - W, axis=1)
+    T = np.eye(3)
+    T[:2, :2], T[:2, 2] = L, t
+    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M))
+
+
+def is_sweep(path: Path) -> bool:
+    return (Path(path) / "sweep.json").is_file()
