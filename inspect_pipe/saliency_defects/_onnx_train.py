@@ -45,12 +45,12 @@ class OnnxTrainConfig:
     seed: int = 0
     crop_px: int = 128
     per_class_batch: int = 4  # crops of each class per step
-    max_steps: int = 480
+    max_steps: int = 1000
     lr: float = 3e-3
     weight_decay: float = 1e-4
     val_every: int = 120
     patience: int = 3  # validations without improvement before stopping
-    time_budget_s: float = 43 * 60
+    time_budget_s: float = 36 * 60  # the cosine schedule ends at max_steps or here, whichever first
     threads: int = 2
     crack_centre_p: float = 0.6  # share of crack crops centred on a crack pixel
     widths: tuple[int, ...] = (8, 16, 32, 64, 96)
@@ -242,11 +242,16 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     log(f"net: {n_par} parameters")
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     warm = 100
+    t_train = time.monotonic() + 60.0  # after warm-up (about a minute)
+    t_left = max(60.0, cfg.time_budget_s - (t_train - t0) - 120.0)  # keep time for the last validation
 
     def lr_at(step):
         if step < warm:
             return cfg.lr * (step + 1) / warm
-        return cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warm) / max(1, cfg.max_steps - warm))))
+        # cosine over the steps, or over the time budget when that ends first (a slow, shared
+        # machine still gets an annealed model; the run is then not step-for-step reproducible)
+        frac = max((step - warm) / max(1, cfg.max_steps - warm), (time.monotonic() - t_train) / t_left)
+        return cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, frac)))
 
     pos_weight = {"corrosion": 1.0, "crack": 3.0, "surface": 1.0}
     best, best_score, bad, step, loss_avg = None, -1.0, 0, 0, None
