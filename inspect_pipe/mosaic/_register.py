@@ -193,6 +193,35 @@ def _disagrees_with_motion(pair: PairMatch, prior, size_wh: tuple[int, int]) -> 
     return ""
 
 
+def _odometry_candidates(
+    comps: list[list[int]], prior, size_wh: tuple[int, int], tried: set[tuple[int, int]], per_pair: int = 8
+) -> list[tuple[int, int]]:
+    """Pairs across disconnected groups that the vehicle's positions put over the same wall
+    (nearest predicted centres first), when the source knows them."""
+    diag = float(np.hypot(*size_wh))
+    located = []
+    for c in comps:
+        fs = [f for f in c if prior.centre_px(f) is not None]
+        located.append((np.array(fs, dtype=int), np.array([prior.centre_px(f) for f in fs]).reshape(-1, 2)))
+    out: list[tuple[int, int]] = []
+    for b in range(1, len(comps)):
+        for a in range(b):
+            (fa, ca), (fb, cb) = located[a], located[b]
+            if not len(fa) or not len(fb):
+                continue
+            d = np.linalg.norm(ca[:, None, :] - cb[None, :, :], axis=2)
+            ia, ib = np.nonzero(d < 0.5 * diag)
+            picked = 0
+            for k in np.argsort(d[ia, ib]):
+                key = (int(min(fa[ia[k]], fb[ib[k]])), int(max(fa[ia[k]], fb[ib[k]])))
+                if key not in tried and key not in out:
+                    out.append(key)
+                    picked += 1
+                    if picked == per_pair:
+                        break
+    return out
+
+
 def _bridge_candidates(
     comps: list[list[int]], feats: dict[int, Features], tried: set[tuple[int, int]], budget: int,
     keyframes: int = 4, per_component: int = 24,
@@ -347,7 +376,8 @@ def register(
         comps = [c for c in _components(valid, accepted) if len(c) >= 2]
         if len(comps) < 2:
             break
-        pairs = _bridge_candidates(comps, feats, tried, budget)
+        pairs = _odometry_candidates(comps, prior, size_wh, tried) if prior is not None else []
+        pairs = pairs or _bridge_candidates(comps, feats, tried, budget)
         if not pairs:
             break
         budget -= len(pairs)

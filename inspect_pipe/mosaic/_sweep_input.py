@@ -10,7 +10,9 @@ each exposure. From those:
   edge, v up from the floor). Its scale is ``m_per_px``; its rotation and offset are fitted
   robustly (Huber) between the frame centres in the mosaic and the wall points the vehicle's
   position estimates put in front of the camera. Odometry drifts and the mosaic does not, so the
-  mosaic fixes the shape and odometry only places it; the residual is reported.
+  mosaic fixes the shape and odometry only places it. The odometry's linear drift (a velocity bias
+  of the optical flow) is estimated jointly, since the lawnmower revisits the wall pass after pass;
+  what remains is the position error at the start of the survey. The residual is reported.
 """
 
 from __future__ import annotations
@@ -88,14 +90,16 @@ class WallGeometry:
     max_m: float
     free_scale_m_per_px: float  # scale a free similarity fit would choose: a consistency check
     n_frames: int
+    drift_m_per_s: tuple[float, float] = (0.0, 0.0)  # odometry drift rate found in (u, v)
 
     def to_json(self) -> dict:
         return {
             "m_per_px": self.m_per_px,
             "wall_from_mosaic": self.wall_from_mosaic.tolist(),
             "wall_fit": {
-                "method": "scale from focal length and wall distance; rotation and offset fitted (Huber) "
-                "between frame centres in the mosaic and the vehicle's position estimates",
+                "method": "scale from focal length and wall distance; rotation, offset and the odometry's "
+                "linear drift fitted (Huber) between frame centres in the mosaic and the vehicle's position estimates",
+                "odometry_drift_m_per_s": [round(d, 5) for d in self.drift_m_per_s],
                 "rms_m": round(self.rms_m, 4),
                 "max_m": round(self.max_m, 4),
                 "free_scale_m_per_px": self.free_scale_m_per_px,
@@ -120,7 +124,7 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
     sweep carries no position or wall distance estimates."""
     cam_t = np.asarray(sweep.meta.cam_to_body.t, float)
     width = _wall_width(sweep.meta)
-    mos, wall, dists = [], [], []
+    mos, wall, dists, times = [], [], [], []
     c = np.array([principal_px[0], principal_px[1], 1.0])
     for i, h in H.items():
         f = sweep.frames[i]
@@ -133,17 +137,18 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
         y_cam = f.position_m[1] + cam_t[1]
         z_cam = f.position_m[2] + cam_t[2]
         wall.append(((width / 2 if width is not None else 0.0) - y_cam, z_cam))
+        times.append(f.t_s)
     if not dists or len(mos) < 3:
         return None
     m_per_px = float(np.mean(dists) / focal_px)
     M, W = np.array(mos), np.array(wall)
     F = np.diag([1.0, -1.0])  # mosaic rows run down, wall v runs up
 
-    def fit(weights: np.ndarray, scale: float | None):
+    def fit_to(Wt: np.ndarray, weights: np.ndarray, scale: float | None):
         wsum = weights.sum()
         mc = (weights[:, None] * M).sum(0) / wsum
-        wc = (weights[:, None] * W).sum(0) / wsum
-        A = ((weights[:, None] * (F @ (W - wc).T).T).T @ (M - mc))  # cross-covariance
+        wc = (weights[:, None] * Wt).sum(0) / wsum
+        A = ((weights[:, None] * (F @ (Wt - wc).T).T).T @ (M - mc))  # cross-covariance
         U, S, Vt = np.linalg.svd(A)
         D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
         R = U @ D @ Vt
@@ -153,16 +158,29 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
         t = wc - L @ mc
         return L, t, scale
 
+    # Odometry = truth + offset + drift * (t - t0): the mosaic knows the true relative layout, so
+    # the drift rate is observable wherever the sweep revisits the wall (pass to pass). Alternate:
+    # Procrustes (fixed scale) on drift-corrected positions, then the drift rate by least squares;
+    # Huber weights at 5 cm throughout.
+    dt = np.array(times) - min(times)
+    drift = np.zeros(2)
     w = np.ones(len(M))
-    for _ in range(10):  # iteratively reweighted least squares, Huber at 5 cm
-        L, t, _ = fit(w, m_per_px)
-        r = np.linalg.norm((M @ L.T) + t - W, axis=1)
+    span = float(np.ptp(dt))
+    for _ in range(30):
+        Wc = W - np.outer(dt, drift)
+        L, t, _ = fit_to(Wc, w, m_per_px)
+        r_vec = W - ((M @ L.T) + t)  # what odometry adds to the mosaic's placement
+        if span > 1.0:
+            A = np.c_[np.ones(len(dt)), dt] * np.sqrt(w)[:, None]
+            coef, *_ = np.linalg.lstsq(A, r_vec * np.sqrt(w)[:, None], rcond=None)
+            drift = coef[1]
+        r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + t), axis=1)
         w = np.where(r <= 0.05, 1.0, 0.05 / np.maximum(r, 1e-12))
-    _, _, free = fit(np.ones(len(M)), None)
-    r = np.linalg.norm((M @ L.T) + t - W, axis=1)
+    _, _, free = fit_to(W - np.outer(dt, drift), np.ones(len(M)), None)
+    r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + t), axis=1)
     T = np.eye(3)
     T[:2, :2], T[:2, 2] = L, t
-    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M))
+    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift))
 
 
 def is_sweep(path: Path) -> bool:
