@@ -1,0 +1,60 @@
+"""Training side of the onnx engine: split rules, the network's size, the export round trip
+(PyTorch output == onnxruntime output, metadata readable by the inference). Needs the [train] extra."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnx")
+
+from inspect_pipe.saliency_defects import _onnx_detect as od  # noqa: E402
+from inspect_pipe.saliency_defects import _onnx_train as ot  # noqa: E402
+from inspect_pipe.saliency_defects._datasets import split_of  # noqa: E402
+
+
+def test_validation_images_are_a_part_of_train_never_eval():
+    stems = [f"{i:03d}" for i in range(300)]
+    for set_name in ("crackforest", "vt_corrosion_cs", "sd_saliency_900"):
+        train = [s for s in stems if split_of(set_name, s) == "train"]
+        val = [s for s in train if ot.is_val(set_name, s)]
+        assert 0.1 < len(val) / len(train) < 0.3
+        assert all(split_of(set_name, s) == "train" for s in val)
+
+
+def test_network_is_compact_and_keeps_the_input_size():
+    net = ot.build_net()
+    n = sum(p.numel() for p in net.parameters())
+    assert 200_000 <= n <= 2_000_000
+    net.eval()
+    with torch.no_grad():
+        y = net(torch.zeros(2, 3, 64, 96))
+    assert y.shape == (2, len(od.CLASSES), 64, 96) and float(y.min()) >= 0 and float(y.max()) <= 1
+
+
+def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path):
+    torch.manual_seed(1)
+    net = ot.build_net()
+    net.eval()
+    best = {"step": 7, "val": {c: {"F": 0.5, "threshold_u8": 100 + i} for i, c in enumerate(od.CLASSES)}, "mean_F": 0.5}
+    record = {c: {"set": ot.SET_OF_CLASS[c], "split_rule": "x % 3 == 0", "val_rule": ot.VAL_RULE, "n_train": 1,
+                  "n_val": 1, "val_stems": ["a"]} for c in od.CLASSES}
+    ck = tmp_path / "m.pt"
+    torch.save({"state": net.state_dict(), "best": best, "record": record,
+                "config": dataclasses.asdict(ot.OnnxTrainConfig()), "n_params": 1}, ck)
+    out = tmp_path / "m.onnx"
+    ot.export_onnx(ck, out, version="test", log=lambda s: None)
+    m = od.load_onnx_model(out)
+    assert m.version == "test" and m.classes == od.CLASSES
+    assert m.thresholds_u8 == {"corrosion": 100, "crack": 101, "surface": 102}
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (75, 109, 3), dtype=np.uint8)  # not a multiple of 16 on purpose
+    got = od.onnx_probabilities_u8(img, m)
+    x = od._prepare(img, m.meta)
+    with torch.no_grad():
+        xp = np.pad(x, ((0, 0), (0, 5), (0, 3)), mode="reflect")[None]  # to 80 x 112
+        ref = net(torch.from_numpy(np.ascontiguousarray(xp)))[0].numpy()[:, :75, :109]
+    for i, c in enumerate(od.CLASSES):
+        assert np.abs(got[c].astype(int) - od._u8(ref[i]).astype(int)).max() <= 1
