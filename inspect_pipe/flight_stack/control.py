@@ -76,8 +76,14 @@ class FlightController:
         thrust_cap_frac: float = 1.0,
     ) -> AttitudeSetpoint:
         p = self.p
-        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_integrators)
-        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_integrators)
+        # Drag feed-forward: the trim that holds a commanded speed against rotor drag comes from
+        # the command, not from the integrators, so it vanishes the moment the command drops to
+        # zero. Integrated, it stayed behind after a stop (ki 0.6/s takes seconds to unwind) and
+        # crept the vehicle past the stop line at a wall (safety campaign: link-loss "hover"
+        # 2 s late while the repulsion pushed it back out, overshoot).
+        ff = p.speed_drag_ff_1_s
+        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_integrators) + ff * cmd.vx_m_s
+        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_integrators) + ff * cmd.vy_m_s
         mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED
         if mode is VerticalMode.HEIGHT:
             if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:

@@ -53,6 +53,9 @@ class BehaviorParams:
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
     repulsion_gain_1_s: float = param(1.2, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s")
+    repulsion_deadband_m: float = param(
+        0.05, 0.0, 0.3, "m", "inside the safe distance by less than this: hold (0), no repulsion"
+    )
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
     stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
     floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")
@@ -73,6 +76,9 @@ class ControlParams:
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
     speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2")
     speed_kd: float = param(0.0, 0.0, 5.0, "1")
+    speed_drag_ff_1_s: float = param(
+        0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
+    )
     vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s")
     vz_ki_1_s2: float = param(1.5, 0.0, 20.0, "1/s^2")
     height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")

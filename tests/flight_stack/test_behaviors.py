@@ -82,6 +82,14 @@ def test_prevent_collision_repulsion_grows_with_proximity_and_is_capped():
     assert side.vy_m_s == pytest.approx(-P.repulsion_gain_1_s * 0.2 + P.repulsion_gain_1_s * 0.1)
 
 
+def test_prevent_collision_holds_without_repulsion_inside_the_dead_band():
+    pc = PreventCollision(P)
+    # a few centimetres inside the line: hold (0), not a never-ending creep backwards
+    assert pc.update(_in(front=P.safe_distance_m - 0.5 * P.repulsion_deadband_m), 0.02).vx_m_s == 0.0
+    deeper = pc.update(_in(front=P.safe_distance_m - P.repulsion_deadband_m - 0.1), 0.02).vx_m_s
+    assert deeper == pytest.approx(-P.repulsion_gain_1_s * 0.1)
+
+
 def test_prevent_collision_brakes_when_the_stop_would_breach_the_safe_distance():
     pc = PreventCollision(P)
     # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.35 - 0.42 < 1 m, so brake now

@@ -82,3 +82,16 @@ def test_alarm_tof_below_half_a_metre_goes_to_landing():
     m = FlightMachine()
     m.state = FlightState.FLYING
     assert _run(m, 1.0, _est(0.45, mode=EstimationMode.ALARM_TOF)) is FlightState.LANDING
+
+
+def test_drag_trim_comes_from_the_command_and_vanishes_with_it():
+    # GIVEN a vehicle tracking 0.5 m/s exactly: the tilt is the drag feed-forward, not integral
+    p = ControlParams()
+    c = FlightController()
+    for _ in range(200):
+        sp = c.update(SpeedCommand(0.5), _est(vx=0.5), 0.02)
+    assert c.pid_vx.integral == pytest.approx(0.0)
+    assert math.tan(sp.pitch_rad) * 9.81 == pytest.approx(p.speed_drag_ff_1_s * 0.5, rel=1e-6)
+    # WHEN the command drops to zero and the vehicle has stopped THEN no trim is left to creep on
+    sp = c.update(SpeedCommand(), _est(vx=0.0), 0.02)
+    assert sp.pitch_rad == pytest.approx(0.0)

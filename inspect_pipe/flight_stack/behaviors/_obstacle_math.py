@@ -35,9 +35,16 @@ def must_stop(
     return stop_point_m(distance_m, closing_m_s, response_time_s=response_time_s, decel_m_s2=decel_m_s2) < safe_m
 
 
-def repulsion_m_s(distance_m: float, *, safe_m: float, gain_1_s: float, max_m_s: float) -> float:
-    """Speed away from an obstacle closer than ``safe_m``; grows with proximity."""
-    return min(gain_1_s * max(safe_m - distance_m, 0.0), max_m_s)
+def repulsion_m_s(
+    distance_m: float, *, safe_m: float, gain_1_s: float, max_m_s: float, deadband_m: float = 0.0
+) -> float:
+    """Speed away from an obstacle closer than ``safe_m - deadband_m``; grows with proximity.
+
+    Within ``deadband_m`` inside the safe distance the answer is 0 (hold): without the band a
+    vehicle resting a few centimetres inside the line (sonar noise, the stop's own tolerance)
+    gets a small, never-ending backward command, so it never hovers (the safety campaign found
+    link losses at a wall where "hover" started 1-2 s late, and dithering at the wall)."""
+    return min(gain_1_s * max(safe_m - deadband_m - distance_m, 0.0), max_m_s)
 
 
 def quantize(stick_m_s: float, *, speed_m_s: float, deadband_m_s: float) -> float:

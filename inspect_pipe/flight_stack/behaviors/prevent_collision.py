@@ -28,7 +28,10 @@ class PreventCollision:
         if distance_m is None:
             return None
         if distance_m < p.safe_distance_m:
-            return -repulsion_m_s(distance_m, safe_m=p.safe_distance_m, gain_1_s=p.repulsion_gain_1_s, max_m_s=p.repulsion_max_m_s)
+            return -repulsion_m_s(
+                distance_m, safe_m=p.safe_distance_m, gain_1_s=p.repulsion_gain_1_s,
+                max_m_s=p.repulsion_max_m_s, deadband_m=p.repulsion_deadband_m,
+            )
         if must_stop(
             distance_m, closing_m_s, safe_m=p.safe_distance_m,
             response_time_s=p.response_time_s, decel_m_s2=p.brake_decel_m_s2,
