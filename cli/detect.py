@@ -250,8 +250,7 @@ def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px
             ready.append((path, name, img, valid))
         if not ready:
             continue
-        dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds) if tile_px == od.TILE_PX else \
-            [od.detect_onnx(r[2], mdl, kinds=kinds, tile_px=tile_px) for r in ready]
+        dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds, tile_px=tile_px)
         for (path, name, img, valid), det in zip(ready, dets):
             prob, mask = det.prob, det.mask
             if valid is not None:

@@ -198,7 +198,7 @@ def detect_onnx(image: np.ndarray, model: OnnxModel, *, kinds=("corrosion", "cra
 
 
 def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("corrosion", "crack"),
-                      batch: int = 4) -> list[Detection]:
+                      batch: int = 4, tile_px: int = TILE_PX) -> list[Detection]:
     """Detections for a sweep's frames: frames of equal size (up to ``WHOLE_MAX_PX``) run
     ``batch`` at a time through one session call; others as with :func:`detect_onnx`."""
     _check_kinds(model, kinds)
@@ -210,7 +210,7 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
         if im.shape[0] * im.shape[1] <= WHOLE_MAX_PX:
             groups.setdefault(im.shape, []).append(i)
         else:
-            out[i] = detect_onnx(im, model, kinds=kinds)
+            out[i] = detect_onnx(im, model, kinds=kinds, tile_px=tile_px)
     for idx in groups.values():
         for s in range(0, len(idx), batch):
             part = idx[s:s + batch]
