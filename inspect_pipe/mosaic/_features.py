@@ -56,6 +56,7 @@ def detect_features(
     max_features: int = 1500,
     max_side_px: int = 2048,
     low_texture_features: int = 150,
+    mode: str = "auto",
 ) -> Features:
     """Detect and describe keypoints on an 8-bit grey image (H, W); ``xy`` in its pixels.
 
@@ -65,9 +66,13 @@ def detect_features(
     faint large-scale structure stays), with a detector four times as sensitive, and kept if it
     finds more: low-texture mud, paint or dim light still gives usable keypoints. (Haltbrekken ROV
     mud frames: 10 SIFT keypoints a frame, 0 of 18 neighbour pairs; with this fallback 17 of 18.)
+    ``mode``: "auto" (as above), "normal" (never the fallback) or "low_texture" (always it: the
+    whole sweep then shares one preprocessing, so frames at a texture boundary still match).
     """
+    if mode == "low_texture":
+        return _detect_scaled(gray, detector, max_features, 640, sensitive=True)
     feats = _detect_scaled(gray, detector, max_features, max_side_px, sensitive=False)
-    if len(feats) < low_texture_features:
+    if mode == "auto" and len(feats) < low_texture_features:
         again = _detect_scaled(gray, detector, max_features, 640, sensitive=True)
         if len(again) > len(feats):
             feats = again

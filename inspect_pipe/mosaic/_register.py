@@ -61,6 +61,8 @@ class RegisterParams:
     layout_rounds: int = 2
     min_overlap: float = 0.15
     candidates_per_frame: int = 2
+    low_texture_features: int = 150  # fewer keypoints than this make a frame texture-poor
+    low_texture_share: float = 0.1  # this share of texture-poor frames switches the sweep to low-texture detection
     keyframe_step: float = 0.05  # of the frame diagonal: closer frames are attached, not aligned
     bridge_budget: int = 400  # unguided matches allowed for joining disconnected groups
     pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
@@ -279,6 +281,7 @@ def register(
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
 
+    mode = "normal"
     prior = source if hasattr(source, "centre_px") and hasattr(source, "skip_reason") else None
 
     def extract(i: int):
@@ -292,9 +295,10 @@ def register(
             return i, str(err), None, None
         gray = to_gray(img)
         small = cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA)
-        return i, "", (img.shape[1], img.shape[0]), (small, detect_features(gray, detector=params.detector, max_features=params.max_features))
+        return i, "", (img.shape[1], img.shape[0]), (small, detect_features(gray, detector=params.detector, max_features=params.max_features, mode=mode))
 
     workers = params.workers or min(os.cpu_count() or 1, 4)
+    mode = "normal"
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for i, err, wh, out in pool.map(extract, range(n)):
             if progress:
@@ -309,6 +313,16 @@ def register(
                 continue
             vig.add_thumbnail(out[0])
             feats[i] = out[1]
+    poor = [i for i, f in feats.items() if len(f) < params.low_texture_features]
+    if params.low_texture_share < 1 and len(poor) >= max(2, params.low_texture_share * len(feats)):
+        # Many texture-poor frames: detect every frame on equalised images with a sensitive
+        # detector. Mixing the two preprocessings frame by frame breaks matching at the boundary.
+        mode = "low_texture"
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for i, err, wh, out in pool.map(extract, sorted(feats)):
+                if progress:
+                    progress("features (low texture)", i + 1, n)
+                feats[i] = out[1]
     if size_wh is None:
         return Registration((0, 0), [], unplaced, [], [], None)
     valid = sorted(feats)
