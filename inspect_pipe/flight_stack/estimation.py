@@ -21,7 +21,7 @@ from inspect_pipe.flight_stack.messages import (
 )
 from inspect_pipe.flight_stack.params import EstimationParams
 
-__all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "SensorStatus", "select_mode"]
+__all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "RangeSlope", "SensorStatus", "select_mode"]
 
 
 class RangeObserver:
@@ -114,6 +114,37 @@ class HeightEstimator:
         o.correct(raw, t_meas)
 
 
+class RangeSlope:
+    """Rate of change of one range sensor from its last samples (least-squares line over
+    ``window_s``); None with fewer than ``min_samples`` consecutive valid samples."""
+
+    def __init__(self, *, window_s: float = 0.45, max_gap_s: float = 0.3, min_samples: int = 3) -> None:
+        self.window_s, self.max_gap_s, self.min_samples = window_s, max_gap_s, min_samples
+        self.samples: list[tuple[float, float]] = []
+
+    def add(self, t: float, range_m: float | None) -> None:
+        if range_m is None:
+            self.samples.clear()
+            return
+        if self.samples and t - self.samples[-1][0] > self.max_gap_s:
+            self.samples.clear()
+        self.samples.append((t, range_m))
+        while self.samples and t - self.samples[0][0] > self.window_s:
+            self.samples.pop(0)
+
+    def rate(self, now: float) -> float | None:
+        s = self.samples
+        if len(s) < self.min_samples or now - s[-1][0] > self.max_gap_s + 0.1:
+            return None
+        n = len(s)
+        tm = sum(t for t, _ in s) / n
+        rm = sum(r for _, r in s) / n
+        den = sum((t - tm) ** 2 for t, _ in s)
+        if den <= 0.0:
+            return None
+        return sum((t - tm) * (r - rm) for t, r in s) / den
+
+
 @dataclass(frozen=True, slots=True)
 class SensorStatus:
     """Which sensors are valid this tick (the data columns of Table I)."""
@@ -150,6 +181,8 @@ class MAVStateUpdater:
         self.front = RangeObserver(**k)
         self._last_height_stamp = -1.0
         self._last_front_stamp = -1.0
+        self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
+        self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
     def status(self, now: float, m: Measurements) -> SensorStatus:
         p = self.p
@@ -234,6 +267,16 @@ class MAVStateUpdater:
         def stale(r: RangeReading | None) -> bool:
             return r is None or now - r.stamp_s > p.sonar_timeout_s
 
+        closing: dict[str, float | None] = {}
+        for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
+            slope = self._slopes[name]
+            if r is not None and r.stamp_s != self._slope_stamps[name]:
+                self._slope_stamps[name] = r.stamp_s
+                valid = r.range_m is not None and r.range_m <= p.sonar_max_range_m
+                slope.add(r.stamp_s, r.range_m if valid else None)
+            rate = slope.rate(now) if not stale(r) else None
+            closing[name] = None if rate is None else -rate
+
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
         return Clearance(
             front_m=front if front is not None else None,
@@ -243,4 +286,7 @@ class MAVStateUpdater:
             front_stale=stale(m.front_sonar),
             left_stale=stale(m.left_sonar),
             right_stale=stale(m.right_sonar),
+            front_closing_m_s=closing["front"],
+            left_closing_m_s=closing["left"],
+            right_closing_m_s=closing["right"],
         )

@@ -144,6 +144,12 @@ class Clearance:
     front_stale: bool = False
     left_stale: bool = False
     right_stale: bool = False
+    # How fast each sector's range shrinks, from its own samples (m/s, positive: closing; None:
+    # too few samples). Differs from the speed along the sensor's axis when the surface is
+    # oblique to it (yawed at a wall): then motion along another axis closes it.
+    front_closing_m_s: float | None = None
+    left_closing_m_s: float | None = None
+    right_closing_m_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

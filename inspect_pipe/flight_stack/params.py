@@ -53,6 +53,9 @@ class BehaviorParams:
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
     repulsion_gain_1_s: float = param(1.2, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s")
+    oblique_margin_m_s: float = param(
+        0.1, 0.0, 1.0, "m/s", "a range closing this much faster than its axis speed: oblique surface"
+    )
     repulsion_deadband_m: float = param(
         0.05, 0.0, 0.3, "m", "inside the safe distance by less than this: hold (0), no repulsion"
     )

@@ -90,6 +90,24 @@ def test_prevent_collision_holds_without_repulsion_inside_the_dead_band():
     assert deeper == pytest.approx(-P.repulsion_gain_1_s * 0.1)
 
 
+def test_prevent_collision_stops_every_axis_when_an_oblique_surface_closes_in():
+    import dataclasses
+
+    pc = PreventCollision(P)
+    base = _in(left=1.2, vx=0.5)  # moving forward; the left sonar sees a wall at 1.2 m
+    # the left range holds still: a wall parallel to the motion, nothing to do
+    still = dataclasses.replace(base, clearance=Clearance(left_m=1.2, down_m=1.5, left_closing_m_s=0.0))
+    assert pc.update(still, 0.02) is None
+    # the left range closes at 0.5 m/s with no lateral speed: the wall is oblique, forward motion
+    # closes it, and the stop would end inside 1 m: stop X and Y
+    closing = dataclasses.replace(base, clearance=Clearance(left_m=1.2, down_m=1.5, left_closing_m_s=0.5))
+    v = pc.update(closing, 0.02)
+    assert (v.vx_m_s, v.vy_m_s) == (0.0, 0.0)
+    # far enough to stop in time: no action yet
+    far = dataclasses.replace(base, clearance=Clearance(left_m=2.5, down_m=1.5, left_closing_m_s=0.5))
+    assert pc.update(far, 0.02) is None
+
+
 def test_prevent_collision_brakes_when_the_stop_would_breach_the_safe_distance():
     pc = PreventCollision(P)
     # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.35 - 0.42 < 1 m, so brake now

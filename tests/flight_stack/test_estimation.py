@@ -103,3 +103,19 @@ def test_height_estimator_follows_a_real_climb():
     assert h.floor_offset_m == pytest.approx(0.0, abs=1e-9)
     assert h.altitude_m == pytest.approx(1.0 + 0.5 * 4.9, abs=0.1)
     assert h.rate_m_s == pytest.approx(0.5, abs=0.05)
+
+
+def test_range_slope_fits_the_closing_rate_and_resets_on_gaps_and_missing_echoes():
+    from inspect_pipe.flight_stack.estimation import RangeSlope
+
+    s = RangeSlope()
+    assert s.rate(0.0) is None
+    for k in range(6):
+        s.add(0.1 * k, 3.0 - 0.04 * k)  # closing at 0.4 m/s
+    assert s.rate(0.55) == pytest.approx(-0.4)
+    s.add(0.6, None)  # no echo: the line starts again
+    assert s.rate(0.6) is None
+    for k in range(3):
+        s.add(1.0 + 0.1 * k, 2.0)
+    assert s.rate(1.25) == pytest.approx(0.0)
+    assert s.rate(2.0) is None  # samples too old

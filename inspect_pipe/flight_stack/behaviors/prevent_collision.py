@@ -39,6 +39,18 @@ class PreventCollision:
             return 0.0
         return None
 
+    def _oblique(self, distance_m: float | None, axis_m_s: float, closing_m_s: float | None) -> bool:
+        """The sector's own range closes faster than the speed along its axis explains (a surface
+        oblique to the sensor, e.g. yawed at a wall, closed by motion along the other axis), fast
+        enough that the stop would breach the safe distance: stop every horizontal axis."""
+        p = self.p
+        if distance_m is None or closing_m_s is None or closing_m_s <= max(axis_m_s, 0.0) + p.oblique_margin_m_s:
+            return False
+        return must_stop(
+            distance_m, closing_m_s, safe_m=p.safe_distance_m,
+            response_time_s=p.response_time_s, decel_m_s2=p.brake_decel_m_s2,
+        )
+
     def update(self, inputs: BehaviorInputs, dt: float) -> AxisVector | None:
         if not inputs.flying:
             return None
@@ -50,6 +62,13 @@ class PreventCollision:
             vy = None
         else:
             vy = (left or 0.0) - (right or 0.0)
+        if (
+            self._oblique(c.front_m, e.vx_m_s, c.front_closing_m_s)
+            or self._oblique(c.left_m, e.vy_m_s, c.left_closing_m_s)
+            or self._oblique(c.right_m, -e.vy_m_s, c.right_closing_m_s)
+        ):
+            vx = 0.0 if vx is None else vx
+            vy = 0.0 if vy is None else vy
         if vx is None and vy is None:
             return None
         return AxisVector(vx_m_s=vx, vy_m_s=vy)
