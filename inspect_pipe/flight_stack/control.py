@@ -51,8 +51,9 @@ class FlightController:
         lim = p.integral_limit_m_s2
         self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
         self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
-        self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=lim)
-        self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=lim)
+        vlim = p.vertical_integral_limit_m_s2
+        self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim)
+        self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
         self.vertical_mode = VerticalMode.SPEED
 
@@ -73,17 +74,19 @@ class FlightController:
         *,
         allow_height_hold: bool = True,
         freeze_integrators: bool = False,
+        freeze_xy_integrators: bool = False,
         thrust_cap_frac: float = 1.0,
     ) -> AttitudeSetpoint:
         p = self.p
+        freeze_xy = freeze_integrators or freeze_xy_integrators
         # Drag feed-forward: the trim that holds a commanded speed against rotor drag comes from
         # the command, not from the integrators, so it vanishes the moment the command drops to
         # zero. Integrated, it stayed behind after a stop (ki 0.6/s takes seconds to unwind) and
         # crept the vehicle past the stop line at a wall (safety campaign: link-loss "hover"
         # 2 s late while the repulsion pushed it back out, overshoot).
         ff = p.speed_drag_ff_1_s
-        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_integrators) + ff * cmd.vx_m_s
-        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_integrators) + ff * cmd.vy_m_s
+        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy) + ff * cmd.vx_m_s
+        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy) + ff * cmd.vy_m_s
         mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED
         if mode is VerticalMode.HEIGHT:
             if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:
@@ -94,20 +97,30 @@ class FlightController:
                 # Bumpless hand-over: the speed loop's trim becomes the height loop's.
                 self.pid_height.reset(self.pid_vz.integral)
             err = self.height_ref_m - est.altitude_m
-            # Integrate only near the reference: a climb to it would otherwise wind the trim up.
-            near = abs(err) < p.height_integral_band_m
-            az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators or not near)
+            # Integrate only near the reference (a climb to it would otherwise wind the trim up),
+            # or while far from it and not moving towards it: the trim is missing (a heavier
+            # vehicle or weaker motors than nominal would otherwise sit below the reference, or
+            # on the floor, for ever: the safety campaign's +-30 % mass/thrust episodes).
+            band = p.height_integral_band_m
+            near = abs(err) < band
+            towards = min(0.5 * abs(err), 0.3)  # m/s: a vehicle with its trim approaches at least this fast
+            stalled = (err > band and est.vz_m_s < towards) or (err < -band and est.vz_m_s > -towards)
+            az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators or not (near or stalled))
+            trim = self.pid_height.integral
         else:
             if self.vertical_mode is VerticalMode.HEIGHT:
                 self.pid_vz.reset(self.pid_height.integral)
             self.height_ref_m = None
             az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators)
+            trim = self.pid_vz.integral
         self.vertical_mode = mode
 
         amax = G * math.tan(p.max_tilt_rad)
         ax = max(-amax, min(amax, ax))
         ay = max(-amax, min(amax, ay))
-        az = max(-p.max_vertical_accel_m_s2, min(p.max_vertical_accel_m_s2, az))
+        # The acceleration limit applies around the trim (the integrator), so a vehicle that needs
+        # a large trim to hover keeps its full authority to climb and descend.
+        az = trim + max(-p.max_vertical_accel_m_s2, min(p.max_vertical_accel_m_s2, az - trim))
         pitch = math.atan2(ax, G)
         roll = -math.atan2(ay, G)
         thrust = p.hover_thrust_frac * (1.0 + az / G) / (math.cos(roll) * math.cos(pitch))

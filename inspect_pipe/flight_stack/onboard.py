@@ -94,8 +94,15 @@ class OnboardStack:
             cmd, setpoint, names = HOVER, AttitudeSetpoint(), ()
         elif state is FlightState.TAKING_OFF:
             cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)
-            # Integrators frozen: on the ground the speed error would only wind them up.
-            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=True)
+            # Integrators frozen: on the ground the speed error would only wind them up. Except the
+            # vertical one once a second has passed without a climb: a vehicle that does not lift
+            # at the nominal hover thrust (heavier, weaker motors, sagging battery) needs the trim
+            # it finds; frozen, it sat on the floor until the take-off time-out and "flew" there
+            # (safety campaign, -28 % thrust: pushed along the floor, stuck at the wall).
+            lifting = machine.time_in_state(now_s) < 1.0 or est.vz_m_s >= 0.1
+            setpoint = ctrl.update(
+                cmd, est, dt, allow_height_hold=False, freeze_integrators=lifting, freeze_xy_integrators=True
+            )
             names = ()
         elif state is FlightState.FLYING:
             cmd = beh.command

@@ -90,6 +90,9 @@ class ControlParams:
     height_integral_band_m: float = param(0.1, 0.0, 5.0, "m", "height PID integrates within this error")
     height_latch_lead_s: float = param(0.3, 0.0, 2.0, "s", "height held = altitude + vz * lead when vz command ends")
     integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2")
+    vertical_integral_limit_m_s2: float = param(
+        6.0, 0.0, 10.0, "m/s^2", "vertical trim range: +-30 % mass or thrust needs ~4.2 m/s^2"
+    )
     max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
     max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")
     hover_thrust_frac: float = param(0.4545, 0.1, 0.9, "1", "nominal thrust to hover / max thrust")

@@ -108,6 +108,17 @@ def test_prevent_collision_stops_every_axis_when_an_oblique_surface_closes_in():
     assert pc.update(far, 0.02) is None
 
 
+def test_prevent_collision_bounds_only_the_speed_towards_the_obstacle():
+    pc = PreventCollision(P)
+    # held inside the dead band at the right wall, the operator escapes left at 0.4 m/s: allowed
+    assert pc.update(_in(SpeedCommand(0.0, 0.4), right=0.97), 0.02).vy_m_s == pytest.approx(0.4)
+    # pushing into it: still held
+    assert pc.update(_in(SpeedCommand(0.0, -0.4), right=0.97), 0.02).vy_m_s == 0.0
+    # deeper: the repulsion, or the operator's faster retreat from the front wall
+    assert pc.update(_in(SpeedCommand(0.0, 0.0), right=0.7), 0.02).vy_m_s > 0.0
+    assert pc.update(_in(SpeedCommand(-0.5), front=0.8), 0.02).vx_m_s == pytest.approx(-0.5)
+
+
 def test_prevent_collision_brakes_when_the_stop_would_breach_the_safe_distance():
     pc = PreventCollision(P)
     # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.35 - 0.42 < 1 m, so brake now

@@ -9,6 +9,7 @@ it approaches at 0.4 m/s or 1 m/s; a distance-only rule would react a sensor per
 from __future__ import annotations
 
 from inspect_pipe.flight_stack.behaviors._obstacle_math import must_stop, repulsion_m_s
+from inspect_pipe.flight_stack.behaviors.attenuated_inspect import inspection_command
 from inspect_pipe.flight_stack.messages import AxisVector, BehaviorInputs
 from inspect_pipe.flight_stack.params import BehaviorParams
 
@@ -62,6 +63,16 @@ class PreventCollision:
             vy = None
         else:
             vy = (left or 0.0) - (right or 0.0)
+        # The stop and the repulsion bound the speed towards the obstacle; the operator may still
+        # leave faster (per axis, this behaviour suppresses the user's: without this, an escape
+        # from a wall crawled at the repulsion speed, or not at all once inside the dead band).
+        user = inspection_command(inputs.stick, self.p) if inputs.inspection_mode else inputs.stick
+        if vx is not None:
+            vx = min(vx, user.vx_m_s)
+        if left is not None and right is None:
+            vy = min(vy, user.vy_m_s)  # type: ignore[type-var]
+        elif right is not None and left is None:
+            vy = max(vy, user.vy_m_s)  # type: ignore[type-var]
         if (
             self._oblique(c.front_m, e.vx_m_s, c.front_closing_m_s)
             or self._oblique(c.left_m, e.vy_m_s, c.left_closing_m_s)

@@ -1,0 +1,33 @@
+"""Stuck episodes: an escape the operator asked for (away from the wall it was pushed at) must
+make progress. Campaign episodes kept as scenarios in ``scenarios/regressions/``, flown with the
+campaign's own metrics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from inspect_pipe.campaign.generator import generate_episode
+from inspect_pipe.campaign.run import fly_episode
+
+REGRESSIONS = Path(__file__).resolve().parents[2] / "scenarios" / "regressions"
+
+# (campaign seed, episode, regression file)
+CASES = [(1, 182, "campaign_weak_thrust_stuck_e182.yaml"), (1, 15, "campaign_escape_from_wall_e15.yaml")]
+
+
+@pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
+def test_regression_file_is_the_campaign_episode(seed, index, fname):
+    doc = yaml.safe_load((REGRESSIONS / fname).read_text())
+    gen = dict(generate_episode(seed, index).doc)
+    assert {k: v for k, v in doc.items() if k != "name"} == {k: v for k, v in gen.items() if k != "name"}
+
+
+@pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
+def test_escape_from_the_wall_makes_progress(seed, index, fname):
+    r = fly_episode(generate_episode(seed, index), "ours")
+    assert not r.collided
+    assert not r.stuck
+    assert r.min_clearance_m > 0.3  # and it flew: a vehicle on the floor has no clearance figure
