@@ -10,7 +10,7 @@ OUT    ?= out
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,base,mavlink,browser-test,report,dask]' --config-settings editable_mode=compat
+	$(PY) -m pip install -q -e '.[test,base,mavlink,browser-test,report,dask,campaign]' --config-settings editable_mode=compat
 	touch $@
 
 # The browser test drives Debian's Chromium (never a downloaded browser). Installed when apt can;
