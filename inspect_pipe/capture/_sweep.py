@@ -30,6 +30,7 @@ import numpy as np
 
 import inspect_pipe
 from inspect_pipe.capture._exif import ImageMeta, embed
+from inspect_pipe._files import atomic_write
 from inspect_pipe.capture._geometry import CameraModel, Pose
 from inspect_pipe.errors import InputError
 
@@ -404,24 +405,6 @@ def _lower_priority(niceness: int = 5) -> None:
         pass
 
 
-def _atomic_write(path: Path, data: bytes, *, fsync: bool) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-        if fsync:
-            os.fsync(fd)
-    except BaseException:
-        os.close(fd)
-        tmp.unlink(missing_ok=True)
-        raise
-    os.close(fd)
-    os.replace(tmp, path)
-
-
 class SweepWriter:
     """Writes a sweep without ever blocking the grabbing thread.
 
@@ -463,7 +446,7 @@ class SweepWriter:
                 (self.path / name).unlink(missing_ok=True)
             doc = {"format": FORMAT, "software_version": inspect_pipe.__version__, "image_format": image_format, **meta}
             doc["format"] = FORMAT
-            _atomic_write(self.path / "sweep.json", (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
+            atomic_write(self.path / "sweep.json", (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
             self._fh = open(self.path / "frames.jsonl", "ab", buffering=0)
         except OSError as err:
             raise InputError(str(self.path), f"cannot create the sweep ({err.strerror})", "choose a writable directory") from None
@@ -477,7 +460,7 @@ class SweepWriter:
         self._overload_params = PNG_STORE if (image_format == "png" and adaptive) else self._params
         self.queue_frames = int(queue_frames)
         self.fsync_every_s = fsync_every_s
-        self._write_bytes = write_bytes or (lambda p, b: _atomic_write(p, b, fsync=False))
+        self._write_bytes = write_bytes or (lambda p, b: atomic_write(p, b, fsync=False))
         self.stats = WriterStats()
         self.error: str | None = None
         self.sha256: dict[str, str] = {}
@@ -593,7 +576,7 @@ class SweepWriter:
                                 "stored_uncompressed": self.stats.stored_uncompressed, "bytes": self.stats.bytes_written, "writer_error": self.error},
                     "sha256": {"frames.jsonl": frames_sha, "sweep.json": hashlib.sha256((self.path / "sweep.json").read_bytes()).hexdigest(), **self.sha256},
                 }
-                _atomic_write(self.path / COMPLETE_NAME, (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
+                atomic_write(self.path / COMPLETE_NAME, (json.dumps(doc, indent=1) + "\n").encode(), fsync=True)
             except OSError as err:
                 self.error = self.error or f"{self.path / COMPLETE_NAME}: cannot write ({err.strerror})"
         return self.stats

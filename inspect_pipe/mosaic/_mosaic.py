@@ -11,7 +11,7 @@ import numpy as np
 import inspect_pipe
 
 from ._blend import BlendParams, CanvasTooLarge, render
-from ._io import write_json, write_png
+from inspect_pipe._files import write_json, write_png
 from ._register import FrameSource, Registration, RegisterParams, register
 from ._sweep_input import SweepSource, wall_geometry
 

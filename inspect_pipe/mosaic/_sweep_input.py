@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 
 from ._io import read_image
-from ._register import FrameError
 
 
 class SweepSource:

@@ -8,12 +8,10 @@ and the saved copy of those options is unchanged; otherwise it and every later s
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
 
-import cv2
 import numpy as np
 
 from inspect_pipe.errors import InputError

@@ -11,41 +11,18 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
+from inspect_pipe._files import write_json, write_png
 from inspect_pipe.errors import InputError
 
 RUN_FORMAT = "inspect_pipe.run/1"
 DEFECTS_FORMAT = "inspect_pipe.defects/1"
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_json(path: Path, doc: Any) -> None:
-    atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
-
-
-def write_png(path: Path, img: np.ndarray) -> None:
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise InputError(str(path), "cannot encode PNG")
-    atomic_write(path, buf.tobytes())
 
 
 def read_png(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:

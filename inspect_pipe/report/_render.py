@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe.pipeline._store import atomic_write, write_json, write_png
+from inspect_pipe._files import atomic_write, write_json, write_png
 
 COLOURS = {"corrosion": (0, 120, 255), "crack": (255, 0, 200)}  # BGR
 STATUS_COLOURS = {"confirmed": (0, 170, 0), "rejected": (128, 128, 128)}
