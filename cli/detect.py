@@ -8,7 +8,6 @@ a positional argument of their own in front of sub-commands).
 from __future__ import annotations
 
 import json
-import os
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional

@@ -12,14 +12,14 @@ Three passes over the training images (features are recomputed each pass to keep
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
 
 from ._detect import decide
 from ._features import FEATURE_NAMES, N_HUE, N_SAT, compute_features
-from ._metrics import ToleranceCounts, best_f, tolerance_counts
+from ._metrics import best_f, tolerance_counts
 from ._model import CONTEXT_NAMES, N_BINS, ClassModel, FeatureTable, Stage, class_logit, context_features, sigmoid
 
 Loader = Callable[[], tuple[np.ndarray, np.ndarray]]
