@@ -182,6 +182,8 @@ class MAVStateUpdater:
         self._last_height_stamp = -1.0
         self._last_front_stamp = -1.0
         self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
+        self._dr_v = (0.0, 0.0)  # horizontal speed carried through the alarm modes (IMU)
+        self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
     def status(self, now: float, m: Measurements) -> SensorStatus:
@@ -203,6 +205,9 @@ class MAVStateUpdater:
         mode = select_mode(status)
         imu = m.imu
         ax = imu.ax_m_s2 if imu is not None else 0.0
+        ay = imu.ay_m_s2 if imu is not None else 0.0
+        dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
+        self._last_now = now
         az = imu.az_m_s2 if imu is not None else 0.0
         bflow = m.bottom_flow if status.bottom_px else None
         fflow = m.front_flow if status.front_px else None
@@ -215,13 +220,20 @@ class MAVStateUpdater:
             self._last_front_stamp = fs.stamp_s
             self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
 
-        # Horizontal speeds: flow preferred over range derivative; zero in alarm.
+        # Horizontal speeds: flow preferred over range derivative. In the alarm modes no sensor
+        # measures them; the paper fills in zero, which leaves a vehicle that was moving coasting
+        # on (its speed loop sees no error to brake on: safety campaign, every range sensor lost
+        # during a push, the vehicle slid into the wall). Instead the last speed is carried on
+        # with the IMU's acceleration, leaking to zero (accelerometer bias) over
+        # ``alarm_speed_leak_s``, so the speed loop brakes the vehicle to a stop.
         if bflow is not None:
             vx, vy = bflow.vx_m_s, bflow.vy_m_s
         elif fflow is not None:
             vx, vy = -self.front.rate, fflow.vy_m_s
         else:
-            vx = vy = 0.0
+            k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
+            vx, vy = (self._dr_v[0] + ax * dt) * k, (self._dr_v[1] + ay * dt) * k
+        self._dr_v = (vx, vy)
 
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
         # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.

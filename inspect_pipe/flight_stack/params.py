@@ -39,6 +39,9 @@ class EstimationParams:
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
     height_jump_m: float = param(0.25, 0.05, 2.0, "m", "range change not explained by vertical motion")
     alarm_climb_m_s: float = param(0.1, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes")
+    alarm_speed_leak_s: float = param(
+        3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
+    )
     # Range observers: triple pole at -1.5 rad/s (k1 = 3L, k2 = 3L^2, k3 = L^3).
     observer_k1_1_s: float = param(4.5, 0.1, 50.0, "1/s", "range observer position gain")
     observer_k2_1_s2: float = param(6.75, 0.01, 500.0, "1/s^2", "range observer rate gain")
