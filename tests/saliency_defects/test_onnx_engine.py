@@ -1,0 +1,173 @@
+"""The learned engine (``--engine onnx``): the shipped network on real fixtures, tiling, batches,
+bad models and bad images. onnxruntime only; no PyTorch needed."""
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from inspect_pipe.saliency_defects import _onnx_detect as od
+from inspect_pipe.saliency_defects._metrics import mask_prf, tolerance_counts
+
+FIX = Path(__file__).resolve().parents[1] / "fixtures" / "defects"
+runner = CliRunner()
+
+
+def _invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def model():
+    return od.load_onnx_model(od.default_onnx_path())
+
+
+def _fixture(stem_img, stem_mask):
+    img = cv2.imread(str(FIX / stem_img), cv2.IMREAD_COLOR)
+    gt = cv2.imread(str(FIX / stem_mask), cv2.IMREAD_GRAYSCALE) > 0
+    return img, gt
+
+
+def test_shipped_model_metadata_records_data_split_metrics_and_licence(model):
+    m = model.meta
+    assert m["format"] == od.ONNX_FORMAT and m["classes"] == ["corrosion", "crack", "surface"]
+    assert m["input"]["mean"] == list(od.INPUT_MEAN) and m["input"]["std"] == list(od.INPUT_STD)
+    for c in ("corrosion", "crack", "surface"):
+        assert "% 3 == 0" in m["data"][c]["split_rule"] and m["data"][c]["n_val"] > 0
+        assert 0 < m["metrics"]["validation"][c]["F"] <= 1
+        assert 1 <= model.thresholds_u8[c] <= 255
+    assert "research" in m["licence"].lower()
+    assert od.default_onnx_path().stat().st_size <= 10_000_000
+
+
+# Golden figures: the shipped network on the fixtures (all from the 'eval' part of the split),
+# measured when the model was committed; a retrained model must land within the tolerance.
+GOLDEN = {"crack": 0.737, "corrosion": 0.630}
+GOLDEN_TOL = 0.03
+
+
+def test_golden_f_on_real_fixtures(model):
+    # GIVEN two CrackForest images and one VT image from the evaluation part
+    counts = None
+    for name in ("crackforest_004", "crackforest_014"):
+        img, gt = _fixture(f"{name}.jpg", f"{name}.mask.png")
+        # WHEN the network decides cracks at its shipped operating point
+        det = od.detect_onnx(img, model, kinds=("crack",))
+        c = tolerance_counts(det.mask.astype(np.uint8) * 255, gt, 2.0)
+        counts = c if counts is None else counts + c
+    f_crack = float(counts.prf()[2][255])
+    img, gt = _fixture("vt_train_112.jpeg", "vt_train_112.mask.png")
+    det = od.detect_onnx(img, model, kinds=("corrosion",))
+    f_corr = mask_prf(det.mask, gt)[2]
+    # THEN the F figures (2 px tolerance for cracks, strict pixels for corrosion) are the golden ones
+    assert f_crack == pytest.approx(GOLDEN["crack"], abs=GOLDEN_TOL), f_crack
+    assert f_corr == pytest.approx(GOLDEN["corrosion"], abs=GOLDEN_TOL), f_corr
+
+
+def test_tiles_with_overlap_equal_whole_image_inference(model):
+    # GIVEN a 600 x 900 image (two fixtures side by side, resized) forced into 256 px tiles
+    a = cv2.imread(str(FIX / "crackforest_004.jpg"))
+    b = cv2.imread(str(FIX / "vt_train_112.jpeg"))
+    img = cv2.resize(np.hstack([cv2.resize(a, (480, 320)), cv2.resize(b, (320, 320))]), (900, 600))
+    whole = od.onnx_probabilities_u8(img, model)
+    tiled = od.onnx_probabilities_u8(img, model, tile_px=256, margin_px=od.MARGIN_PX, whole_max_px=0)
+    for k in model.classes:
+        d = np.abs(whole[k].astype(int) - tiled[k].astype(int))
+        # THEN the maps agree to within 2 grey levels everywhere and almost all pixels are identical
+        assert d.max() <= 2, (k, d.max())
+        assert (d == 0).mean() > 0.99
+    # and a too-small margin is visibly different (the test can fail)
+    short = od.onnx_probabilities_u8(img, model, tile_px=256, margin_px=0, whole_max_px=0)
+    assert max(np.abs(whole[k].astype(int) - short[k].astype(int)).max() for k in model.classes) > 2
+
+
+def test_batch_of_frames_equals_one_by_one(model):
+    a = cv2.imread(str(FIX / "crackforest_004.jpg"))
+    b = cv2.imread(str(FIX / "crackforest_014.jpg"))
+    c = cv2.imread(str(FIX / "vt_train_112.jpeg"))
+    dets = od.detect_onnx_batch([a, b, c, a], model, batch=2)
+    for img, d in zip([a, b, c, a], dets):
+        one = od.detect_onnx(img, model)
+        assert np.abs(d.prob.astype(int) - one.prob.astype(int)).max() <= 1
+        assert len(d.regions) == len(one.regions)
+
+
+def test_grey_image_works_for_every_class(model):
+    g = cv2.imread(str(FIX / "crackforest_004.jpg"), cv2.IMREAD_GRAYSCALE)
+    det = od.detect_onnx(g, model, kinds=("crack", "surface"))
+    assert det.prob.shape == g.shape
+
+
+def test_image_too_small_is_a_value_error(model):
+    with pytest.raises(ValueError, match="too small"):
+        od.detect_onnx(np.zeros((20, 300, 3), np.uint8), model)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def test_cli_onnx_engine_writes_the_three_outputs(tmp_path):
+    src = tmp_path / "sweep"
+    src.mkdir()
+    for i in range(3):  # equal-size frames of a sweep go through in batches
+        shutil.copy(FIX / "crackforest_004.jpg", src / f"f{i}.jpg")
+    shutil.copy(FIX / "vt_train_112.jpeg", src / "g.jpeg")
+    out = tmp_path / "out"
+    r = _invoke("detect", src, "-o", out, "--engine", "onnx")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "defects.json").read_text())
+    assert doc["model"]["engine"] == "onnx" and len(doc["images"]) == 4 and doc["regions"]
+    for name in ("f0", "f1", "f2", "g"):
+        prob = cv2.imread(str(out / f"{name}.prob.png"), cv2.IMREAD_UNCHANGED)
+        mask = cv2.imread(str(out / f"{name}.mask.png"), cv2.IMREAD_UNCHANGED)
+        assert prob.dtype == np.uint8 and prob.shape == mask.shape and set(np.unique(mask)) <= {0, 255}
+    assert {g["class"] for g in doc["regions"]} <= {"corrosion", "crack"}
+
+
+def _bad_models(tmp_path) -> dict[str, Path]:
+    raw = od.default_onnx_path().read_bytes()
+    out = {"missing": tmp_path / "nothere.onnx"}
+    out["corrupt"] = tmp_path / "corrupt.onnx"
+    out["corrupt"].write_bytes(raw[: len(raw) // 3])
+    # same-length byte edits of the metadata JSON (no onnx package needed)
+    for name, old, new in (("format", b'"inspect_pipe.defect_onnx/1"', b'"inspect_pipe.defect_onnx/9"'),
+                           ("channels", b'"channels": "RGB"', b'"channels": "BGR"'),
+                           ("nometa", b"\x0a\x0cinspect_pipe", b"\x0a\x0cinspect_pipX")):
+        assert raw.count(old) == 1, name
+        out[name] = tmp_path / f"{name}.onnx"
+        out[name].write_bytes(raw.replace(old, new))
+    return out
+
+
+@pytest.mark.parametrize("case,words", [
+    ("missing", "not found"), ("corrupt", "not a valid ONNX"), ("format", "format"),
+    ("channels", "RGB"), ("nometa", "no 'inspect_pipe' metadata"),
+])
+def test_bad_model_exits_2_with_one_line_and_saliency_still_works(tmp_path, monkeypatch, case, words):
+    bad = _bad_models(tmp_path)[case]
+    r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o1", "--engine", "onnx", "--model", bad)
+    assert r.exit_code == 2
+    lines = [ln for ln in r.output.strip().splitlines() if ln]
+    assert len(lines) == 1 and lines[0].startswith("error:") and words in lines[0] and str(bad) in lines[0], r.output
+    # the default engine does not touch the network file at all
+    monkeypatch.setattr(od, "default_onnx_path", lambda: bad)
+    r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o2", "--engine", "saliency")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "o2" / "crackforest_004.mask.png").exists()
+
+
+def test_cli_image_too_small_exits_2_and_others_are_written(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(FIX / "crackforest_004.jpg", src / "a.jpg")
+    cv2.imwrite(str(src / "b_tiny.png"), np.full((16, 16, 3), 128, np.uint8))
+    r = _invoke("detect", src, "-o", tmp_path / "out", "--engine", "onnx")
+    assert r.exit_code == 2
+    last = [ln for ln in r.output.strip().splitlines() if ln.startswith("error")][-1]
+    assert "b_tiny.png" in last and "too small" in last
+    assert (tmp_path / "out" / "a.prob.png").exists()
