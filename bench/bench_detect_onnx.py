@@ -14,18 +14,33 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import time
+from pathlib import Path
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from inspect_pipe.saliency_defects import (  # noqa: E402
-    class_probabilities_u8, decide, default_model_path, detect, labelled_set, load_model,
+from inspect_pipe.saliency_defects import (
+    class_probabilities_u8,
+    decide,
+    default_model_path,
+    detect,
+    labelled_set,
+    load_model,
 )
-from inspect_pipe.saliency_defects._metrics import best_f, max_fbeta, saliency_curves, tolerance_counts  # noqa: E402
-from inspect_pipe.saliency_defects._onnx_detect import (  # noqa: E402
-    _decide, default_onnx_path, detect_onnx, detect_onnx_batch, load_onnx_model, onnx_probabilities_u8,
+from inspect_pipe.saliency_defects._metrics import (
+    best_f,
+    max_fbeta,
+    saliency_curves,
+    tolerance_counts,
+)
+from inspect_pipe.saliency_defects._onnx_detect import (
+    _decide,
+    default_onnx_path,
+    detect_onnx,
+    detect_onnx_batch,
+    load_onnx_model,
+    onnx_probabilities_u8,
 )
 
 SET_DIRS = {"crack": "crackforest", "corrosion": "vt_corrosion_cs", "surface": "sd_saliency_900"}
@@ -122,11 +137,11 @@ def run(data: Path) -> str:
     lines = [
         "## Detection engines: saliency (default) vs learned network on onnxruntime (`--engine onnx`)",
         "",
-        f"Network `{default_onnx_path().name}` ({meta['training']['n_params']} parameters, compact U-Net, best "
-        f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}), "
-        "trained on the 'train' part minus its validation images; saliency model `defects_v1.npz`. Every figure is "
-        "on the 'eval' part, which neither model saw. Operating points: each engine's own (saliency: training "
-        "split; network: validation split).",
+        (f"Network `{default_onnx_path().name}` ({meta['training']['n_params']} parameters, compact U-Net, best "
+         f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}), "
+         "trained on the 'train' part minus its validation images; saliency model `defects_v1.npz`. Every figure is "
+         "on the 'eval' part, which neither model saw. Operating points: each engine's own (saliency: training "
+         "split; network: validation split)."),
         "",
         f"### Cracks: CrackForest eval ({c['onnx']['n']} images), 2 px tolerance, counts summed",
         "",
@@ -153,12 +168,12 @@ def run(data: Path) -> str:
         "",
         "| case | saliency | onnx | target (issue 9) |",
         "|---|---|---|---|",
-        f"| 752 x 480 frame, corrosion + crack, whole `detect` | {s_med:.0f} ms (min {s_min:.0f}) "
-        f"| {o_med:.0f} ms (min {o_min:.0f}) | onnx <= 50 ms |",
+        (f"| 752 x 480 frame, corrosion + crack, whole `detect` | {s_med:.0f} ms (min {s_min:.0f}) "
+         f"| {o_med:.0f} ms (min {o_min:.0f}) | onnx <= 50 ms |"),
         f"| same frame in a batch of 8 (4 per session call), per frame | | {b_med / 8:.0f} ms | |",
         "",
-        f"Default engine: **{'onnx' if all(better) else 'saliency'}** (onnx is the default only if it beats "
-        f"saliency on every set at the operating point; here it does on {sum(better)} of 3).",
+        (f"Default engine: **{'onnx' if all(better) else 'saliency'}** (onnx is the default only if it beats "
+         f"saliency on every set at the operating point; here it does on {sum(better)} of 3)."),
         "",
         f"_Accuracy part took {acc_s:.0f} s._",
     ]

@@ -337,7 +337,12 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> 
         import torch  # noqa: F401
     except ImportError:
         raise InputError("torch", "not installed", "pip install -e '.[train]'") from None
-    from inspect_pipe.saliency_defects._onnx_train import SET_OF_CLASS, OnnxTrainConfig, export_onnx, train as train_net
+    from inspect_pipe.saliency_defects._onnx_train import (
+        SET_OF_CLASS,
+        OnnxTrainConfig,
+        export_onnx,
+    )
+    from inspect_pipe.saliency_defects._onnx_train import train as train_net
 
     if not data.is_dir():
         raise InputError(data, "not a folder")

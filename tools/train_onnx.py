@@ -15,7 +15,11 @@ from pathlib import Path
 
 
 def main(argv=None) -> None:
-    from inspect_pipe.saliency_defects._onnx_train import OnnxTrainConfig, export_onnx, train
+    from inspect_pipe.saliency_defects._onnx_train import (
+        OnnxTrainConfig,
+        export_onnx,
+        train,
+    )
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", type=Path)

@@ -77,7 +77,7 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
     so.log_severity_level = 3
     try:
         sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-    except Exception as err:  # onnxruntime raises its own exception types
+    except Exception as err:  # noqa: BLE001 - onnxruntime raises several unrelated types for a bad file
         first = str(err).strip().splitlines()[0][:160] if str(err).strip() else type(err).__name__
         raise ValueError(f"not a valid ONNX model ({first})") from None
     raw = sess.get_modelmeta().custom_metadata_map.get("inspect_pipe")
@@ -119,7 +119,7 @@ def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
 
 def _run(model: OnnxModel, xs: np.ndarray) -> np.ndarray:
     """(N, 3, H, W) input of any H, W -> (N, C, H, W) probabilities (reflect-padded to 16)."""
-    n, _, h, w = xs.shape
+    _, _, h, w = xs.shape
     ph, pw = (-h) % MULTIPLE_OF, (-w) % MULTIPLE_OF
     if ph or pw:
         xs = np.pad(xs, ((0, 0), (0, 0), (0, ph), (0, pw)), mode="reflect")
@@ -165,7 +165,7 @@ def onnx_probabilities_u8(
 
 
 def _decide(prob_u8: np.ndarray, threshold_u8: int, min_area_px: int):
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((prob_u8 >= threshold_u8).astype(np.uint8), connectivity=8,
+    _, labels, stats, _ = cv2.connectedComponentsWithStats((prob_u8 >= threshold_u8).astype(np.uint8), connectivity=8,
                                                            ltype=cv2.CV_32S)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
     keep[0] = False

@@ -19,9 +19,9 @@ import hashlib
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -29,7 +29,15 @@ import numpy as np
 from ._datasets import SPLIT_RULE, labelled_set
 from ._metrics import best_f, tolerance_counts
 from ._onnx_detect import (
-    CLASSES, INPUT_MEAN, INPUT_STD, LICENCE, MIN_AREA_PX, MIN_SIDE_PX, MULTIPLE_OF, ONNX_FORMAT, TOL_PX,
+    CLASSES,
+    INPUT_MEAN,
+    INPUT_STD,
+    LICENCE,
+    MIN_AREA_PX,
+    MIN_SIDE_PX,
+    MULTIPLE_OF,
+    ONNX_FORMAT,
+    TOL_PX,
 )
 
 VAL_RULE = 'val if int(sha1("val:<set>/<stem>").hexdigest(), 16) % 5 == 0 (within the train part)'
@@ -235,7 +243,7 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     rng = np.random.default_rng(cfg.seed)
     t0 = time.monotonic()
     train_items, val_items, record = load_parts(root)
-    log(f"data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
+    log("data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
         + f" ({time.monotonic() - t0:.0f} s)")
     net = build_net(cfg.widths)
     n_par = sum(p.numel() for p in net.parameters())

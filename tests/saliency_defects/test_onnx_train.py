@@ -2,7 +2,6 @@
 (PyTorch output == onnxruntime output, metadata readable by the inference). Needs the [train] extra."""
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,9 +9,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
-from inspect_pipe.saliency_defects import _onnx_detect as od  # noqa: E402
-from inspect_pipe.saliency_defects import _onnx_train as ot  # noqa: E402
-from inspect_pipe.saliency_defects._datasets import split_of  # noqa: E402
+from inspect_pipe.saliency_defects import _onnx_detect as od
+from inspect_pipe.saliency_defects import _onnx_train as ot
+from inspect_pipe.saliency_defects._datasets import split_of
 
 
 def test_validation_images_are_a_part_of_train_never_eval():
@@ -58,3 +57,15 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
         ref = net(torch.from_numpy(np.ascontiguousarray(xp)))[0].numpy()[:, :75, :109]
     for i, c in enumerate(od.CLASSES):
         assert np.abs(got[c].astype(int) - od._u8(ref[i]).astype(int)).max() <= 1
+
+
+def test_cli_train_onnx_without_the_three_sets_exits_2(tmp_path):
+    from typer.testing import CliRunner
+
+    from cli.main import app
+
+    (tmp_path / "crackforest").mkdir()
+    r = CliRunner().invoke(app, ["detect", "train", str(tmp_path), "--engine", "onnx", "-o", str(tmp_path / "m.onnx")])
+    assert r.exit_code == 2
+    line = r.output.strip().splitlines()[-1]
+    assert "vt_corrosion_cs" in line and "sd_saliency_900" in line and not (tmp_path / "m.onnx").exists()
