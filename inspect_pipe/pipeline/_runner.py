@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import replace, dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -102,6 +102,10 @@ def run_pipeline(
 def _one(args) -> RunOutcome:
     """Worker entry (Dask or local): one sweep's pipeline, errors as values."""
     run_dir, cfg, force, rerun_from = args
+    if cfg.threads:
+        import cv2
+
+        cv2.setNumThreads(cfg.threads)
     try:
         return run_pipeline(run_dir, cfg, force=force, rerun_from=rerun_from, log=lambda s: None)
     except InputError as err:
@@ -121,9 +125,10 @@ def run_many(
 ) -> list[RunOutcome]:
     """Many sweeps: one process and no Dask when ``workers == 1`` and no scheduler; otherwise a
     Dask distributed client on ``scheduler`` (tcp://HOST:8786) or a local cluster of ``workers``
-    single-threaded processes."""
-    args = [(str(d), c, force, rerun_from) for d, c in jobs]
+    single-threaded processes (each sweep then runs on one thread: Dask spreads the sweeps, not
+    the work inside one)."""
     if workers <= 1 and scheduler is None:
+        args = [(str(d), c, force, rerun_from) for d, c in jobs]
         outs = []
         for a in args:
             o = _one(a)
@@ -131,6 +136,7 @@ def run_many(
             if on_done:
                 on_done(o)
         return outs
+    args = [(str(d), replace(c, threads=1), force, rerun_from) for d, c in jobs]
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:

@@ -41,6 +41,7 @@ class RunConfig:
     detect: DetectConfig = field(default_factory=DetectConfig)
     report: dict = field(default_factory=dict)  # ReportParams as a dict (see report_params)
     report_out: str | None = None  # default RUN/report
+    threads: int = 0  # threads for one sweep (0: every core); results do not depend on it
 
     def report_params(self):
         from inspect_pipe.report import CoverageParams, RatingParams, RegisterParams, ReportParams
@@ -108,7 +109,7 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     from inspect_pipe import mosaic as M
 
     sweep = store.input_sweep()
-    params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px))
+    params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px, workers=cfg.threads))
     if sweep is not None:
         out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress)
     else:
