@@ -205,7 +205,7 @@ def run(data: Path) -> str:
         many("Dask, 2 workers", workers=2)
         d1, d2, nd = timings["Dask, 1 worker"], timings["Dask, 2 workers"], timings["no Dask, one process on every core"]
         w(f"| 8 sweeps (40 frames each): Dask 1 worker / 2 workers (local cluster, one thread each) | {d1:.1f} s / {d2:.1f} s = **{d1 / d2:.2f}x** | >= 1.7x |\n")
-        w(f"| same 8 sweeps, one process using every core (no Dask) | {nd:.1f} s ( Dask 2 workers take {d2 / nd:.2f}x its time) | |\n")
+        w(f"| same 8 sweeps, one process using every core (no Dask) | {nd:.1f} s (Dask 2 workers take {d2 / nd:.2f}x its time) | |\n")
         w("\nGeolocation isolates the mosaic and wall map: the true masks are carried into the mosaic through "
           "each frame's exact homography and located by the report like detections. The detector rows include "
           "the detector's own errors (it over-grows rust borders; cracks were learned on asphalt). This machine's "
