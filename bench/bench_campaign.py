@@ -12,31 +12,11 @@ import tempfile
 from pathlib import Path
 
 from inspect_pipe.campaign import CampaignConfig, run_campaign
+from inspect_pipe.campaign.report import METRIC_ROWS as _ROWS
+from inspect_pipe.campaign.report import fmt as _f
 
 EPISODES = 200
 SEED = 1
-
-_ROWS = (
-    ("collision_free", "collision-free share"),
-    ("collisions", "collisions"),
-    ("min_clearance_p001_m", "min clearance from rotor envelope p0.1 (m)"),
-    ("min_clearance_median_m", "min clearance median (m)"),
-    ("overshoot_max_m", "overshoot past the 1 m stop line, max (m)"),
-    ("dither_changes_per_10s_max", "dithering at the wall, max sign changes / 10 s"),
-    ("stuck_episodes", "episodes stuck in corners"),
-    ("stale_block_s_max", "time to block a stale sector, max (s)"),
-    ("stale_unblocked", "stale-sector pushes never blocked"),
-    ("link_loss_hover_s_max", "hover after link loss, max (s)"),
-    ("link_loss_drift_m_max", "drift during link loss, max (m)"),
-    ("altitude_excursion_m_max", "altitude excursion over floor steps, max (m)"),
-    ("false_landed", "false 'landed' in the air"),
-)
-
-
-def _f(v) -> str:
-    if v is None:
-        return "-"
-    return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
 def run(data: Path) -> str:  # data: unused, the episodes are generated

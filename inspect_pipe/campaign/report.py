@@ -8,9 +8,9 @@ from pathlib import Path
 
 from inspect_pipe.campaign.metrics import EpisodeResult
 
-__all__ = ["write_report"]
+__all__ = ["METRIC_ROWS", "fmt", "write_report"]
 
-_ROWS = (
+METRIC_ROWS = (  # (summary key, label): the table of report.html and of the benchmark
     ("collision_free", "collision-free share"),
     ("collisions", "collisions"),
     ("min_clearance_p001_m", "min clearance from rotor envelope, p0.1 (m)"),
@@ -27,7 +27,7 @@ _ROWS = (
 )
 
 
-def _fmt(v) -> str:
+def fmt(v) -> str:
     if v is None:
         return "-"
     if isinstance(v, float):
@@ -81,11 +81,11 @@ def write_report(summary: dict, per_shield: dict[str, list[EpisodeResult]], out:
 
 def _write_html(summary: dict, shields: list[str], plots: list[tuple[str, str]], out: Path, note: str = "") -> Path:
     rows = []
-    for key, label in _ROWS:
-        cells = "".join(f"<td>{_fmt(summary['shields'][s].get(key))}</td>" for s in shields)
+    for key, label in METRIC_ROWS:
+        cells = "".join(f"<td>{fmt(summary['shields'][s].get(key))}</td>" for s in shields)
         rows.append(f"<tr><th>{html.escape(label)}</th>{cells}</tr>")
     goals = "".join(
-        f"<li>{html.escape(k)}: {_fmt(v.get('value'))} (goal {_fmt(v.get('goal'))}) - {'met' if v.get('met') else 'NOT met'}</li>"
+        f"<li>{html.escape(k)}: {fmt(v.get('value'))} (goal {fmt(v.get('goal'))}) - {'met' if v.get('met') else 'NOT met'}</li>"
         for k, v in summary.get("goals", {}).items()
     )
     imgs = "".join(f"<figure><img src='{p}'><figcaption>{html.escape(c)}</figcaption></figure>" for p, c in plots)
