@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 import inspect_pipe
+from inspect_pipe.errors import InputError
 
 from ._blend import BlendParams, CanvasTooLarge, render
 from inspect_pipe._files import write_json, write_png
@@ -157,6 +158,9 @@ def run_mosaic_sweep(
     from inspect_pipe.capture import read_sweep
 
     sweep = read_sweep(sweep_dir)
+    if not sweep.frames:
+        why = f" ({sweep.problems[0]})" if sweep.problems else ""
+        raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
     source = SweepSource(sweep)
     reg_params = replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px)
     params = replace(params, register=reg_params)

@@ -132,3 +132,16 @@ def test_frames_taken_while_landed_are_not_mosaicked(tmp_path):
     doc = json.loads((tmp_path / "out" / "mosaic.json").read_text())
     assert [u["index"] for u in doc["unplaced"]] == [0]
     assert "landed" in doc["unplaced"][0]["reason"]
+
+
+def test_sweep_without_frames_is_one_line_exit_2(tmp_path):
+    from typer.testing import CliRunner
+
+    from cli.main import app
+
+    _write_sweep(tmp_path / "sweep", np.random.default_rng(7))
+    (tmp_path / "sweep" / "frames.jsonl").write_text("")
+    res = CliRunner().invoke(app, ["mosaic", str(tmp_path / "sweep"), "-o", str(tmp_path / "out"), "-q"])
+    assert res.exit_code == 2
+    assert "frames.jsonl" in res.output and "no readable frames" in res.output
+    assert "Traceback" not in res.output
