@@ -1,6 +1,7 @@
-"""Both detection engines on every labelled set in one run: the saliency engine (Bayes on
-saliency features, the default) and the learned network on onnxruntime (``--engine onnx``);
-speed per 752 x 480 frame on one core for both.
+"""The detection engines on every labelled set in one run: the saliency engine (Bayes on
+saliency features, the default), the learned network on onnxruntime (``--engine onnx``) and
+their per-class weighted mean (``--engine fused``, weights fitted on the validation images);
+speed per 752 x 480 frame on one core for each.
 
     python -m bench --only detect_onnx
 
@@ -27,6 +28,12 @@ from inspect_pipe.saliency_defects import (
     detect,
     labelled_set,
     load_model,
+)
+from inspect_pipe.saliency_defects._fused import (
+    default_fused_path,
+    detect_fused,
+    fuse_u8,
+    load_fused_model,
 )
 from inspect_pipe.saliency_defects._metrics import (
     best_f,
@@ -101,6 +108,7 @@ def run(data: Path) -> str:
     root = data / "defects"
     sal = load_model(default_model_path())
     onx = load_onnx_model(default_onnx_path(), threads=1)
+    fus = load_fused_model(threads=1)
     t0 = time.perf_counter()
     res = {}
     for cls in ("crack", "corrosion", "surface"):
@@ -114,15 +122,27 @@ def run(data: Path) -> str:
             p8 = onnx_probabilities_u8(img, onx)[cls]
             return p8, _decide(p8, onx.thresholds_u8[cls], onx.min_area_px[cls])[0]
 
-        res[cls] = {"saliency": _score(root, cls, sal_maps), "onnx": _score(root, cls, onnx_maps)}
+        def fused_p8(img, cls=cls):
+            return fuse_u8(class_probabilities_u8(img, fus.saliency, (cls,))[cls],
+                           onnx_probabilities_u8(img, fus.onnx)[cls], fus.weights[cls])
+
+        def fused_maps(img, cls=cls):
+            p8 = fused_p8(img)
+            return p8, _decide(p8, fus.thresholds_u8[cls], fus.min_area_px[cls])[0]
+
+        res[cls] = {"saliency": _score(root, cls, sal_maps), "onnx": _score(root, cls, onnx_maps),
+                    "fused": _score(root, cls, fused_maps)}
+        res[cls]["fused_fn"] = fused_p8
     res["surface"]["saliency"]["MAE"] = _mae(root, lambda im: class_probabilities_u8(im, sal, ("surface",))["surface"])
     res["surface"]["onnx"]["MAE"] = _mae(root, lambda im: onnx_probabilities_u8(im, onx)["surface"])
+    res["surface"]["fused"]["MAE"] = _mae(root, res["surface"]["fused_fn"])
     acc_s = time.perf_counter() - t0
 
     walls = sorted((data / "walls").glob("*.jp*g"))
     frame = cv2.resize(cv2.imread(str(walls[0]), cv2.IMREAD_COLOR), (752, 480), interpolation=cv2.INTER_AREA)
     s_med, s_min = _speed(lambda im: detect(im, sal), frame)
     o_med, o_min = _speed(lambda im: detect_onnx(im, onx), frame)
+    f_med, f_min = _speed(lambda im: detect_fused(im, fus), frame)
     batch = [frame] * 8
     b_med, _ = _speed(lambda _im: detect_onnx_batch(batch, onx, batch=4), frame, n=3)
 
@@ -134,8 +154,11 @@ def run(data: Path) -> str:
 
     better = [c["onnx"]["F"] > c["saliency"]["F"], k["onnx"]["F"] > k["saliency"]["F"],
               s["onnx"]["Fbeta"] > s["saliency"]["Fbeta"]]
+    fig = {"crack": "F", "corrosion": "F", "surface": "Fbeta"}
+    fused_best = [res[x]["fused"][fig[x]] > max(res[x]["saliency"][fig[x]], res[x]["onnx"][fig[x]]) for x in fig]
+    wts = ", ".join(f"{x} {fus.weights[x]:.1f} / {fus.thresholds_u8[x]}" for x in ("crack", "corrosion", "surface"))
     lines = [
-        "## Detection engines: saliency (default) vs learned network on onnxruntime (`--engine onnx`)",
+        "## Detection engines: saliency (default), learned network on onnxruntime (`--engine onnx`), fused (`--engine fused`)",
         "",
         (f"Network `{default_onnx_path().name}` ({meta['training']['n_params']} parameters, compact U-Net, best "
          f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}), "
@@ -149,6 +172,7 @@ def run(data: Path) -> str:
         "|---|---|---|---|---|---|",
         row("saliency (Bayes)", c["saliency"], ("P", "R", "F", "ODS")) + " |",
         row("**onnx** (U-Net)", c["onnx"], ("P", "R", "F", "ODS")) + " F >= 0.80, ODS >= 0.82 |",
+        row("fused", c["fused"], ("P", "R", "F", "ODS")) + " |",
         "",
         f"### Corrosion: VT eval ({k['onnx']['n']} images), any state above Good, strict pixels summed",
         "",
@@ -156,6 +180,7 @@ def run(data: Path) -> str:
         "|---|---|---|---|---|---|---|",
         row("saliency (Bayes)", k["saliency"], ("P", "R", "F", "IoU", "ODS")) + " |",
         row("**onnx** (U-Net)", k["onnx"], ("P", "R", "F", "IoU", "ODS")) + " F1 >= 0.80 |",
+        row("fused", k["fused"], ("P", "R", "F", "IoU", "ODS")) + " |",
         "",
         f"### Steel surface defects: SD-saliency-900 eval ({s['onnx']['n']} images), salient-object protocol",
         "",
@@ -163,17 +188,23 @@ def run(data: Path) -> str:
         "|---|---|---|---|---|---|",
         row("saliency (Bayes, `surface`)", s["saliency"], ("Fbeta", "AUC", "MAE", "F")) + " |",
         row("**onnx** (U-Net)", s["onnx"], ("Fbeta", "AUC", "MAE", "F")) + " max F-beta >= 0.85, MAE <= 0.06 |",
+        row("fused", s["fused"], ("Fbeta", "AUC", "MAE", "F")) + " |",
         "",
         "### Speed, one core (`OMP_NUM_THREADS=1`, onnxruntime CPU provider, 1 intra-op thread)",
         "",
-        "| case | saliency | onnx | target (issue 9) |",
-        "|---|---|---|---|",
+        "| case | saliency | onnx | fused | target (issue 9) |",
+        "|---|---|---|---|---|",
         (f"| 752 x 480 frame, corrosion + crack, whole `detect` | {s_med:.0f} ms (min {s_min:.0f}) "
-         f"| {o_med:.0f} ms (min {o_min:.0f}) | onnx <= 50 ms |"),
-        f"| same frame in a batch of 8 (4 per session call), per frame | | {b_med / 8:.0f} ms | |",
+         f"| {o_med:.0f} ms (min {o_min:.0f}) | {f_med:.0f} ms (min {f_min:.0f}) | onnx <= 50 ms |"),
+        f"| same frame in a batch of 8 (4 per session call), per frame | | {b_med / 8:.0f} ms | | |",
         "",
         (f"Default engine: **{'onnx' if all(better) else 'saliency'}** (onnx is the default only if it beats "
          f"saliency on every set at the operating point; here it does on {sum(better)} of 3)."),
+        "",
+        (f"Fused (`--engine fused`, `{default_fused_path().name}`): per class p = w * p_saliency + (1 - w) * p_onnx, "
+         f"w and threshold fitted on the network's validation images only (w / threshold: {wts}). "
+         f"Best of the three engines on {sum(fused_best)} of 3 sets (crack F, corrosion F1, SD-900 max F-beta); "
+         f"it would be the default only if best on every set, so it is {'' if all(fused_best) else 'not '}the default."),
         "",
         f"_Accuracy part took {acc_s:.0f} s._",
     ]

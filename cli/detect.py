@@ -53,6 +53,7 @@ app = typer.Typer(
 class Engine(str, Enum):
     saliency = "saliency"
     onnx = "onnx"
+    fused = "fused"
 
 
 class Kind(str, Enum):
@@ -133,17 +134,19 @@ def run(
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file (default: the shipped one).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64).", min=256)] = 768,
-    engine: Annotated[Engine, typer.Option("--engine", help="saliency: Bayes on saliency features (default); onnx: the learned network.")] = Engine.saliency,
+    engine: Annotated[Engine, typer.Option("--engine", help="saliency: Bayes on saliency features (default); onnx: the learned network; fused: a per-class weighted mean of both (--model: its parameter .json).")] = Engine.saliency,
 ) -> None:
     """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json.
 
     Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack ;
-    inspect-pipe detect frames/ -o out/det --engine onnx
+    inspect-pipe detect frames/ -o out/det --engine onnx ; inspect-pipe detect frames/ -o out/det --engine fused
     """
     import inspect_pipe.saliency_defects as sd
 
     if engine is Engine.onnx:
         return _run_onnx(input, out, kind, model, tile_px)
+    if engine is Engine.fused:
+        return _run_fused(input, out, kind, model, tile_px)
     if tile_px % 64:
         raise InputError("--tile-px", f"{tile_px} is not a multiple of 64")
     model_path = model or sd.default_model_path()
@@ -283,6 +286,72 @@ def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px
         raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
 
 
+def _run_fused(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
+    """``detect --engine fused``: both engines' maps, mixed per class with the weights and
+    thresholds fitted on the validation images (``models/fused_v1.json``)."""
+    from inspect_pipe.saliency_defects import _fused as fu
+
+    if tile_px % 64:
+        raise InputError("--tile-px", f"{tile_px} is not a multiple of 64")
+    params_path = model or fu.default_fused_path()
+    try:
+        mdl = fu.load_fused_model(params_path)
+    except ValueError as err:
+        raise InputError(params_path, str(err), "use --engine saliency or --engine onnx") from None
+    kinds = _kinds(kind)
+    for k in kinds:
+        if k not in mdl.weights:
+            raise InputError(params_path, f"fused parameters have no class {k!r}", f"have {', '.join(mdl.weights)}")
+    files = list_inputs(input)
+    out.mkdir(parents=True, exist_ok=True)
+    images, regions, errors = [], [], []
+    used: set[str] = set()
+    for path in files:
+        name = _name_for(path, used)
+        try:
+            img, valid = read_image(path)
+            try:
+                det = fu.detect_fused(img, mdl, kinds=kinds, tile_px=tile_px)
+            except ValueError as err:
+                raise InputError(path, str(err)) from None
+        except InputError as err:
+            errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
+            typer.echo(f"error: {err}", err=True)
+            continue
+        prob, mask = det.prob, det.mask
+        if valid is not None:
+            prob = np.where(valid, prob, 0).astype(np.uint8)
+            mask = mask & valid
+        _write_png(out / f"{name}.prob.png", prob)
+        _write_png(out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
+        kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
+        for r in kept:
+            regions.append({"id": len(regions) + 1, "image": name, "file": str(path), **r.to_json()})
+        images.append({
+            "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
+            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
+            "defect_fraction": round(float(mask.mean()), 6),
+        })
+        typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
+    doc = {
+        "format": DEFECTS_FORMAT,
+        "model": {"file": str(params_path), "engine": "fused", "version": mdl.version,
+                  "engines": {"saliency": mdl.saliency.version, "onnx": mdl.onnx.version},
+                  "weights_saliency": {k: mdl.weights[k] for k in kinds},
+                  "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
+                  "min_area_px": {k: mdl.min_area_px[k] for k in kinds}},
+        "kinds": list(kinds),
+        "images": images,
+        "regions": regions,
+        "errors": errors,
+    }
+    (out / "defects.json").write_text(json.dumps(doc, indent=1))
+    if errors:
+        first = errors[0]
+        more = f"; {len(errors) - 1} more failed" if len(errors) > 1 else ""
+        raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
+
+
 @app.command("train")
 @one_line_errors
 def train(
@@ -303,6 +372,9 @@ def train(
 
     if engine is Engine.onnx:
         return _train_onnx(data, out, version, time_budget_min)
+    if engine is Engine.fused:
+        raise InputError("--engine fused", "has no training of its own",
+                         "fit its weights with 'python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json'")
 
     cv2.setNumThreads(1)
     if not data.is_dir():

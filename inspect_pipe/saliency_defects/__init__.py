@@ -15,6 +15,10 @@ model file reader/writer.
 The learned engine (``--engine onnx``, a compact U-Net on onnxruntime) has the same outputs:
 
     >>> det = detect_onnx(bgr_image, load_onnx_model(default_onnx_path()))
+
+and the fused engine (``--engine fused``, per-class weighted mean of both, fitted on validation images):
+
+    >>> det = detect_fused(bgr_image, load_fused_model())
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from ._combine import combine_max, combine_normalised_sum, conspicuity_maps
 from ._datasets import SETS, SPLIT_RULE, LabelledImage, generic_set, labelled_set, split_of
 from ._detect import TILE_PX, Detection, Region, class_probabilities, class_probabilities_u8, decide, detect
 from ._features import FEATURE_NAMES, FeatureStack, compute_features
+from ._fused import FusedModel, default_fused_path, detect_fused, load_fused_model
 from ._onnx_detect import OnnxModel, default_onnx_path, detect_onnx, detect_onnx_batch, load_onnx_model, onnx_probabilities_u8
 from ._model import ClassModel, DefectModel, load_model, save_model
 from ._train import DEFAULT_CONFIGS, ClassTrainConfig, train_class, train_model
@@ -45,5 +50,5 @@ __all__ = [
     "class_probabilities", "class_probabilities_u8", "combine_max", "combine_normalised_sum",
     "compute_features", "conspicuity_maps", "decide", "default_model_path", "detect",
     "generic_set", "labelled_set", "OnnxModel", "default_onnx_path", "detect_onnx", "detect_onnx_batch",
-    "load_onnx_model", "onnx_probabilities_u8", "load_model", "SETS", "save_model", "split_of", "train_class", "train_model",
+    "load_onnx_model", "onnx_probabilities_u8", "FusedModel", "default_fused_path", "detect_fused", "load_fused_model", "load_model", "SETS", "save_model", "split_of", "train_class", "train_model",
 ]

@@ -1,0 +1,253 @@
+"""Fused engine (``--engine fused``): a per-class weighted mean of the two engines' probabilities.
+
+    p_fused = w_c * p_saliency + (1 - w_c) * p_onnx        (per pixel, uint8 0..255)
+
+decided at a per-class threshold, with the onnx engine's speckle sizes. The weights ``w_c`` (a
+grid of 0, 0.1, ..., 1) and thresholds are fitted on the onnx network's VALIDATION images only
+(the 'train' part of the split with ``sha1("val:<set>/<stem>") % 5 == 0``, ``_onnx_train.VAL_RULE``);
+the 'eval' part is never read. Refit with one command (about a minute on 2 cores):
+
+    python -m inspect_pipe.saliency_defects._fused ../shared/data/defects -o inspect_pipe/saliency_defects/models/fused_v1.json
+
+The parameters live in a small versioned JSON file (``models/fused_v1.json``) that records the
+split they were fitted on, the validation figure of every weight, and the SHA-256 of the two
+model files they were fitted for.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._detect import Detection, Region, class_probabilities_u8, regions_of
+from ._model import DefectModel, load_model
+from ._onnx_detect import (
+    MIN_AREA_PX,
+    TOL_PX,
+    OnnxModel,
+    _check,
+    _decide,
+    load_onnx_model,
+    onnx_probabilities_u8,
+)
+
+FUSED_FORMAT = "inspect_pipe.defect_fused/1"
+CLASSES = ("corrosion", "crack", "surface")
+WEIGHT_GRID = tuple(round(0.1 * i, 1) for i in range(11))
+#: Data set of each class (the fit reads its validation images).
+SET_OF_CLASS = {"crack": "crackforest", "corrosion": "vt_corrosion_cs", "surface": "sd_saliency_900"}
+#: What a class's weight is chosen by on the validation images: F at the operating point (2 px
+#: tolerance for cracks, strict pixels for corrosion) or, for the steel-surface salient-object
+#: protocol, max F-beta (beta^2 = 0.3). The threshold is the best-F level of the fused map.
+CRITERION = {"crack": "F", "corrosion": "F", "surface": "Fbeta"}
+
+
+@dataclass(frozen=True)
+class FusedModel:
+    params_path: Path
+    params: dict
+    saliency: DefectModel
+    onnx: OnnxModel
+    weights: dict[str, float]
+    thresholds_u8: dict[str, int]
+    min_area_px: dict[str, int]
+
+    @property
+    def version(self) -> str:
+        return str(self.params.get("version", "?"))
+
+
+def sha256_of(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def fuse_u8(p_sal: np.ndarray, p_onnx: np.ndarray, w: float) -> np.ndarray:
+    """w * p_sal + (1 - w) * p_onnx, both uint8 maps of one shape, rounded to uint8."""
+    if p_sal.shape != p_onnx.shape:
+        raise ValueError(f"probability maps differ in shape: {p_sal.shape} vs {p_onnx.shape}")
+    f = np.float32(w) * p_sal.astype(np.float32) + np.float32(1 - w) * p_onnx.astype(np.float32)
+    return np.clip(np.rint(f), 0, 255).astype(np.uint8)
+
+
+def default_fused_path() -> Path:
+    return Path(__file__).parent / "models" / "fused_v1.json"
+
+
+def load_fused_params(path: Path) -> dict:
+    """Read and check a parameter file. Raises ValueError with a one-line reason."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError("fused parameter file not found")
+    try:
+        p = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ValueError("fused parameter file is not JSON") from None
+    if not isinstance(p, dict) or p.get("format") != FUSED_FORMAT:
+        raise ValueError(f"fused parameter format {p.get('format') if isinstance(p, dict) else None!r}, expected {FUSED_FORMAT!r}")
+    cls = p.get("classes")
+    if not isinstance(cls, dict) or not cls:
+        raise ValueError("fused parameter file has no classes")
+    for k, c in cls.items():
+        w, t = c.get("weight_saliency"), c.get("threshold_u8")
+        if not isinstance(w, (int, float)) or not 0 <= w <= 1 or not isinstance(t, int) or not 1 <= t <= 255:
+            raise ValueError(f"fused parameters for {k!r}: weight must be in [0, 1] and threshold in 1..255")
+    return p
+
+
+def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | None = None,
+                     onnx_path: Path | None = None, threads: int = 1) -> FusedModel:
+    """Both engines' models and the fusion parameters (defaults: the shipped files)."""
+    from . import default_model_path
+    from ._onnx_detect import default_onnx_path
+
+    params_path = Path(params_path or default_fused_path())
+    p = load_fused_params(params_path)
+    sal = load_model(Path(saliency_path or default_model_path()))
+    onx = load_onnx_model(Path(onnx_path or default_onnx_path()), threads=threads)
+    cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}
+    return FusedModel(params_path, p, sal, onx,
+                      {k: float(c["weight_saliency"]) for k, c in cls.items()},
+                      {k: int(c["threshold_u8"]) for k, c in cls.items()},
+                      {k: int(c.get("min_area_px", MIN_AREA_PX.get(k, 64))) for k, c in cls.items()})
+
+
+def _check_kinds(model: FusedModel, kinds) -> None:
+    for k in kinds:
+        if k not in model.weights:
+            raise ValueError(f"fused parameters have no class {k!r} (have {', '.join(model.weights)})")
+
+
+def fused_probabilities_u8(image: np.ndarray, model: FusedModel, kinds, *, tile_px: int = 768) -> dict[str, np.ndarray]:
+    """Per-class fused maps (uint8). Both engines tile large images their own way, with tiles of
+    ``tile_px`` (a multiple of 64) and their own overlaps."""
+    _check_kinds(model, kinds)
+    _check(image)
+    ps = class_probabilities_u8(image, model.saliency, kinds, tile_px=tile_px)
+    po = onnx_probabilities_u8(image, model.onnx, tile_px=tile_px)
+    return {k: fuse_u8(ps[k], po[k], model.weights[k]) for k in kinds}
+
+
+def detect_fused(image: np.ndarray, model: FusedModel, *, kinds=("corrosion", "crack"), tile_px: int = 768) -> Detection:
+    """Like :func:`detect`, on the fused maps. Raises ValueError for an unusable image (the
+    saliency engine's rules: colour needed for corrosion; the network's: sides >= 32 px)."""
+    probs = fused_probabilities_u8(image, model, kinds, tile_px=tile_px)
+    h, w = image.shape[:2]
+    mask = np.zeros((h, w), bool)
+    regions: list[Region] = []
+    for k in kinds:
+        m, labels, stats, ids = _decide(probs[k], model.thresholds_u8[k], model.min_area_px[k])
+        mask |= m
+        regions += regions_of(k, probs[k], labels, stats, ids)
+    prob = probs[kinds[0]].copy() if len(kinds) == 1 else np.maximum.reduce([probs[k] for k in kinds])
+    return Detection(prob, mask, probs, tuple(regions))
+
+
+# ----------------------------------------------------------------------------- fitting
+
+
+def _val_maps(data: Path, cls: str, sal: DefectModel, onx: OnnxModel):
+    from ._datasets import labelled_set
+    from ._onnx_train import is_val
+
+    set_name = SET_OF_CLASS[cls]
+    items = [it for it in labelled_set(Path(data) / set_name, split="train") if is_val(set_name, it.stem)]
+    out = []
+    for it in items:
+        img, gt = it.load()
+        out.append((class_probabilities_u8(img, sal, (cls,))[cls], onnx_probabilities_u8(img, onx)[cls], gt))
+    return [it.stem for it in items], out
+
+
+def score_weight(maps, cls: str, w: float, threshold_u8: int | None = None) -> dict:
+    """Summed-count figures of the fused maps of (p_sal, p_onnx, gt) triples at one weight:
+    best F and its threshold, F at ``threshold_u8`` (default: that best one) after speckle
+    removal, and for 'surface' the max F-beta."""
+    from ._metrics import best_f, max_fbeta, saliency_curves, tolerance_counts
+
+    tol = TOL_PX[cls]
+    sums = op = None
+    P, R = [], []
+    fused = []
+    for ps, po, gt in maps:
+        f = fuse_u8(ps, po, w)
+        fused.append(f)
+        c = tolerance_counts(f, gt, tol)
+        sums = c if sums is None else sums + c
+        if cls == "surface":
+            pr, rc, _ = saliency_curves(f, gt)
+            P.append(pr)
+            R.append(rc)
+    best, t = best_f(sums)
+    t = t if threshold_u8 is None else threshold_u8
+    for f, (_, _, gt) in zip(fused, maps):
+        m = _decide(f, t, MIN_AREA_PX[cls])[0]
+        c = tolerance_counts(m.astype(np.uint8) * 255, gt, tol)
+        op = c if op is None else op + c
+    out = {"best_F": round(best, 4), "threshold_u8": int(t), "F": round(float(op.prf()[2][255]), 4)}
+    if P:
+        out["Fbeta"] = round(max_fbeta(P, R), 4)
+    return out
+
+
+def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path | None = None,
+              version: str = "1", log=print) -> dict:
+    """Choose each class's weight and threshold on the validation images (see module doc)."""
+    from . import default_model_path
+    from ._datasets import SPLIT_RULE
+    from ._onnx_detect import default_onnx_path
+    from ._onnx_train import VAL_RULE
+
+    sp, op = Path(saliency_path or default_model_path()), Path(onnx_path or default_onnx_path())
+    sal, onx = load_model(sp), load_onnx_model(op, threads=2)
+    classes = {}
+    for cls in CLASSES:
+        stems, maps = _val_maps(data, cls, sal, onx)
+        if not maps:
+            raise ValueError(f"{data}: no validation images for {cls} ({SET_OF_CLASS[cls]})")
+        curve = {f"{w:.1f}": score_weight(maps, cls, w) for w in WEIGHT_GRID}
+        key = CRITERION[cls]
+        wbest = max(WEIGHT_GRID, key=lambda w: (curve[f"{w:.1f}"][key], -w))  # ties: more network
+        best = curve[f"{wbest:.1f}"]
+        log(f"{cls}: weight_saliency {wbest:.1f}, threshold {best['threshold_u8']}, validation {key} {best[key]:.3f} "
+            f"(saliency alone {curve['1.0'][key]:.3f}, onnx alone {curve['0.0'][key]:.3f})")
+        classes[cls] = {"weight_saliency": wbest, "threshold_u8": best["threshold_u8"],
+                        "min_area_px": MIN_AREA_PX[cls], "criterion": key,
+                        "validation": {"set": SET_OF_CLASS[cls], "n_images": len(maps), "images": stems,
+                                       "by_weight": curve}}
+    return {
+        "format": FUSED_FORMAT,
+        "version": version,
+        "rule": "p = w * p_saliency + (1 - w) * p_onnx per class (uint8); decision p >= threshold_u8; "
+                "components below min_area_px removed",
+        "fitted_on": {"split": "validation", "split_rule": SPLIT_RULE, "val_rule": VAL_RULE,
+                      "note": "the 'eval' part is never read; the saliency tables were trained on the whole "
+                              "'train' part, so its validation maps are in-sample (favours saliency)"},
+        "weight_grid": list(WEIGHT_GRID),
+        "engines": {"saliency": {"file": sp.name, "sha256": sha256_of(sp)},
+                    "onnx": {"file": op.name, "sha256": sha256_of(op)}},
+        "classes": classes,
+    }
+
+
+def main(argv=None) -> None:
+    import argparse
+
+    import cv2
+
+    ap = argparse.ArgumentParser(description="Fit the fused engine's weights on the validation images.")
+    ap.add_argument("data", type=Path, help="folder holding crackforest/, vt_corrosion_cs/, sd_saliency_900/")
+    ap.add_argument("-o", "--out", type=Path, default=default_fused_path())
+    ap.add_argument("--version", default="1")
+    a = ap.parse_args(argv)
+    cv2.setNumThreads(1)
+    params = fit_fused(a.data, version=a.version)
+    a.out.write_text(json.dumps(params, indent=1) + "\n")
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
