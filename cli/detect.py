@@ -126,6 +126,68 @@ def _name_for(path: Path, used: set[str]) -> str:
     return name
 
 
+class _Outputs:
+    """The outputs every engine writes: ``NAME.prob.png``, ``NAME.mask.png`` per image and one
+    ``defects.json``; failed images are recorded and reported after the others are written."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        out.mkdir(parents=True, exist_ok=True)
+        self.images: list[dict] = []
+        self.regions: list[dict] = []
+        self.errors: list[dict] = []
+        self._used: set[str] = set()
+
+    def name_for(self, path: Path) -> str:
+        return _name_for(path, self._used)
+
+    def fail(self, path: Path, err: InputError) -> None:
+        self.errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
+        typer.echo(f"error: {err}", err=True)
+
+    def add(self, path: Path, name: str, img: np.ndarray, valid: Optional[np.ndarray], det) -> None:
+        prob, mask = det.prob, det.mask
+        if valid is not None:  # transparent pixels of a mosaic are not wall
+            prob = np.where(valid, prob, 0).astype(np.uint8)
+            mask = mask & valid
+        _write_png(self.out / f"{name}.prob.png", prob)
+        _write_png(self.out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
+        kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
+        for r in kept:
+            self.regions.append({"id": len(self.regions) + 1, "image": name, "file": str(path), **r.to_json()})
+        self.images.append({
+            "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
+            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
+            "defect_fraction": round(float(mask.mean()), 6),
+        })
+        typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
+
+    def finish(self, model_doc: dict, kinds: tuple[str, ...]) -> None:
+        doc = {"format": DEFECTS_FORMAT, "model": model_doc, "kinds": list(kinds),
+               "images": self.images, "regions": self.regions, "errors": self.errors}
+        (self.out / "defects.json").write_text(json.dumps(doc, indent=1))
+        if self.errors:
+            first = self.errors[0]
+            more = f"; {len(self.errors) - 1} more failed" if len(self.errors) > 1 else ""
+            raise InputError(first["file"], first["problem"] + more, f"{len(self.images)} other images written to {self.out}")
+
+
+def _detect_each(files: list[Path], outs: _Outputs, detect_one) -> None:
+    """One image at a time: read, detect (``detect_one(img)``), write; errors recorded."""
+    for path in files:
+        name = outs.name_for(path)
+        try:
+            img, valid = read_image(path)
+            try:
+                det = detect_one(img)
+            except ValueError as err:
+                raise InputError(path, str(err)) from None
+        except InputError as err:
+            outs.fail(path, err)
+            continue
+        outs.add(path, name, img, valid, det)
+
+
 @app.command("run")
 @one_line_errors
 def run(
@@ -160,54 +222,12 @@ def run(
     for k in kinds:
         if k not in mdl.classes:
             raise InputError(model_path, f"model has no class {k!r}", f"has {', '.join(mdl.classes)}")
-    files = list_inputs(input)
-    out.mkdir(parents=True, exist_ok=True)
-
-    images, regions, errors = [], [], []
-    used: set[str] = set()
-    for path in files:
-        name = _name_for(path, used)
-        try:
-            img, valid = read_image(path)
-            try:
-                det = sd.detect(img, mdl, kinds=kinds, tile_px=tile_px)
-            except ValueError as err:
-                raise InputError(path, str(err)) from None
-        except InputError as err:
-            errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
-            typer.echo(f"error: {err}", err=True)
-            continue
-        prob, mask = det.prob, det.mask
-        if valid is not None:  # transparent pixels of a mosaic are not wall
-            prob = np.where(valid, prob, 0).astype(np.uint8)
-            mask = mask & valid
-        _write_png(out / f"{name}.prob.png", prob)
-        _write_png(out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
-        kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
-        for r in kept:
-            regions.append({"id": len(regions) + 1, "image": name, "file": str(path), **r.to_json()})
-        images.append({
-            "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
-            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
-            "defect_fraction": round(float(mask.mean()), 6),
-        })
-        typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
-
-    doc = {
-        "format": DEFECTS_FORMAT,
-        "model": {"file": str(model_path), "version": mdl.version,
-                  "operating_points": {k: mdl.classes[k].threshold for k in kinds},
-                  "min_area_px": {k: mdl.classes[k].min_area_px for k in kinds}},
-        "kinds": list(kinds),
-        "images": images,
-        "regions": regions,
-        "errors": errors,
-    }
-    (out / "defects.json").write_text(json.dumps(doc, indent=1))
-    if errors:
-        first = errors[0]
-        more = f"; {len(errors) - 1} more failed" if len(errors) > 1 else ""
-        raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
+    files = list_inputs(input)  # bad input fails before anything is created
+    outs = _Outputs(out)
+    _detect_each(files, outs, lambda img: sd.detect(img, mdl, kinds=kinds, tile_px=tile_px))
+    outs.finish({"file": str(model_path), "version": mdl.version,
+                 "operating_points": {k: mdl.classes[k].threshold for k in kinds},
+                 "min_area_px": {k: mdl.classes[k].min_area_px for k in kinds}}, kinds)
 
 
 def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
@@ -227,63 +247,29 @@ def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px
         if k not in mdl.classes:
             raise InputError(model_path, f"model has no class {k!r}", f"has {', '.join(mdl.classes)}")
     files = list_inputs(input)
-    out.mkdir(parents=True, exist_ok=True)
-    images, regions, errors = [], [], []
-    used: set[str] = set()
-
-    def fail(path, err):
-        errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
-        typer.echo(f"error: {err}", err=True)
-
+    outs = _Outputs(out)
     chunk = 4
-    for s in range(0, len(files), chunk):
+    for start in range(0, len(files), chunk):
         ready = []  # (path, name, img, valid)
-        for path in files[s:s + chunk]:
-            name = _name_for(path, used)
+        for path in files[start:start + chunk]:
+            name = outs.name_for(path)
             try:
                 img, valid = read_image(path)
                 od._check(img)
             except InputError as err:
-                fail(path, err)
+                outs.fail(path, err)
                 continue
             except ValueError as err:
-                fail(path, InputError(path, str(err)))
+                outs.fail(path, InputError(path, str(err)))
                 continue
             ready.append((path, name, img, valid))
-        if not ready:
-            continue
-        dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds, tile_px=tile_px)
-        for (path, name, img, valid), det in zip(ready, dets):
-            prob, mask = det.prob, det.mask
-            if valid is not None:
-                prob = np.where(valid, prob, 0).astype(np.uint8)
-                mask = mask & valid
-            _write_png(out / f"{name}.prob.png", prob)
-            _write_png(out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
-            kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
-            for r in kept:
-                regions.append({"id": len(regions) + 1, "image": name, "file": str(path), **r.to_json()})
-            images.append({
-                "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
-                "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
-                "defect_fraction": round(float(mask.mean()), 6),
-            })
-            typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
-    doc = {
-        "format": DEFECTS_FORMAT,
-        "model": {"file": str(model_path), "engine": "onnx", "version": mdl.version,
-                  "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
-                  "min_area_px": {k: mdl.min_area_px[k] for k in kinds}},
-        "kinds": list(kinds),
-        "images": images,
-        "regions": regions,
-        "errors": errors,
-    }
-    (out / "defects.json").write_text(json.dumps(doc, indent=1))
-    if errors:
-        first = errors[0]
-        more = f"; {len(errors) - 1} more failed" if len(errors) > 1 else ""
-        raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
+        if ready:
+            dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds, tile_px=tile_px)
+            for (path, name, img, valid), det in zip(ready, dets):
+                outs.add(path, name, img, valid, det)
+    outs.finish({"file": str(model_path), "engine": "onnx", "version": mdl.version,
+                 "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
+                 "min_area_px": {k: mdl.min_area_px[k] for k in kinds}}, kinds)
 
 
 def _run_fused(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
@@ -302,54 +288,14 @@ def _run_fused(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_p
     for k in kinds:
         if k not in mdl.weights:
             raise InputError(params_path, f"fused parameters have no class {k!r}", f"have {', '.join(mdl.weights)}")
-    files = list_inputs(input)
-    out.mkdir(parents=True, exist_ok=True)
-    images, regions, errors = [], [], []
-    used: set[str] = set()
-    for path in files:
-        name = _name_for(path, used)
-        try:
-            img, valid = read_image(path)
-            try:
-                det = fu.detect_fused(img, mdl, kinds=kinds, tile_px=tile_px)
-            except ValueError as err:
-                raise InputError(path, str(err)) from None
-        except InputError as err:
-            errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
-            typer.echo(f"error: {err}", err=True)
-            continue
-        prob, mask = det.prob, det.mask
-        if valid is not None:
-            prob = np.where(valid, prob, 0).astype(np.uint8)
-            mask = mask & valid
-        _write_png(out / f"{name}.prob.png", prob)
-        _write_png(out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
-        kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
-        for r in kept:
-            regions.append({"id": len(regions) + 1, "image": name, "file": str(path), **r.to_json()})
-        images.append({
-            "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
-            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
-            "defect_fraction": round(float(mask.mean()), 6),
-        })
-        typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
-    doc = {
-        "format": DEFECTS_FORMAT,
-        "model": {"file": str(params_path), "engine": "fused", "version": mdl.version,
-                  "engines": {"saliency": mdl.saliency.version, "onnx": mdl.onnx.version},
-                  "weights_saliency": {k: mdl.weights[k] for k in kinds},
-                  "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
-                  "min_area_px": {k: mdl.min_area_px[k] for k in kinds}},
-        "kinds": list(kinds),
-        "images": images,
-        "regions": regions,
-        "errors": errors,
-    }
-    (out / "defects.json").write_text(json.dumps(doc, indent=1))
-    if errors:
-        first = errors[0]
-        more = f"; {len(errors) - 1} more failed" if len(errors) > 1 else ""
-        raise InputError(first["file"], first["problem"] + more, f"{len(images)} other images written to {out}")
+    files = list_inputs(input)  # bad input fails before anything is created
+    outs = _Outputs(out)
+    _detect_each(files, outs, lambda img: fu.detect_fused(img, mdl, kinds=kinds, tile_px=tile_px))
+    outs.finish({"file": str(params_path), "engine": "fused", "version": mdl.version,
+                 "engines": {"saliency": mdl.saliency.version, "onnx": mdl.onnx.version},
+                 "weights_saliency": {k: mdl.weights[k] for k in kinds},
+                 "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
+                 "min_area_px": {k: mdl.min_area_px[k] for k in kinds}}, kinds)
 
 
 @app.command("train")
