@@ -4,6 +4,12 @@
   a small per-unit bias, quality 0..255 (0 without a sonar echo: no metric scale); its MaxBotix
   HRLV-EZ4 sonar at 10 Hz, 0.3..5 m, 50 ms latency.
 * Side HRLV-EZ4 sonars (left, right): 10 Hz, 5 m.
+* Every horizontal sonar has a beam, not a ray: an ultrasonic ranger reports its first echo, the
+  nearest surface inside its beam. The beam is a horizontal fan of ``sonar_beam_rays`` rays over
+  +-``sonar_half_beam_deg`` (15 deg: MaxBotix's narrow-beam HRLV-EZ4 against the large flat plates
+  of a hold); the nearest hit is the reading. A single ray along the axis missed the edge of a
+  pillar or coaming that a real sonar hears (safety campaign: slides along a wall into a pillar's
+  side). The fan is horizontal only: the downward PX4Flow sonar and the ToF stay single rays.
 * TeraRanger One (bottom): 100 Hz, 0.2..14 m, 10 ms latency, +-2 cm.
 * The autopilot's IMU: mean acceleration per control tick, with noise and a residual bias.
 
@@ -62,6 +68,8 @@ class SensorSpecs:
     sonar: RangeSpec = RangeSpec(10.0, 0.05, 0.3, 5.0, 0.005, 0.002)
     tof: RangeSpec = RangeSpec(100.0, 0.01, 0.2, 14.0, 0.02)
     grazing_deg: float = 35.0  # incidence from the surface normal beyond which a sonar may miss its echo
+    sonar_half_beam_deg: float = 15.0  # horizontal sonars: half-width of the beam
+    sonar_beam_rays: int = 5  # rays across the beam (odd: one on the axis)
 
 
 @dataclass(frozen=True)
@@ -79,6 +87,23 @@ class SensorFaults:
 
 
 NO_FAULTS = SensorFaults()
+
+
+def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, float], ...]:
+    """Body-frame unit directions across a horizontal sonar's beam, the axis first."""
+    n, half = max(1, specs.sonar_beam_rays), math.radians(specs.sonar_half_beam_deg)
+    offsets = [0.0] + [half * (2.0 * k / (n - 1) - 1.0) for k in range(n) if n > 1 and 2 * k != n - 1]
+    return tuple((math.cos(axis_yaw_rad + o), math.sin(axis_yaw_rad + o), 0.0) for o in offsets)
+
+
+def _first_echo(sim: QuadrotorSim, pos, directions) -> tuple[float | None, float]:
+    """Nearest hit over the beam's rays and the incidence of that ray (rad)."""
+    best, incidence = None, 0.0
+    for d in directions:
+        r = sim.ray(pos, d)
+        if r is not None and (best is None or r < best):
+            best, incidence = r, sim.incidence_rad()
+    return best, incidence
 _RANGE_CHANNELS = frozenset({"bottom_sonar", "front_sonar", "left_sonar", "right_sonar", "bottom_tof"})
 
 
@@ -134,8 +159,8 @@ class SensorSuite:
         self.fault_rng = random.Random(seed * 15485863 + 17)  # only faults draw from it
         self._faults = NO_FAULTS
         self._dirs = {
-            "bottom_sonar": (0.0, 0.0, -1.0), "bottom_tof": (0.0, 0.0, -1.0), "front_sonar": (1.0, 0.0, 0.0),
-            "left_sonar": (0.0, 1.0, 0.0), "right_sonar": (0.0, -1.0, 0.0),
+            "bottom_sonar": ((0.0, 0.0, -1.0),), "bottom_tof": ((0.0, 0.0, -1.0),),
+            "front_sonar": _fan(0.0, self.s), "left_sonar": _fan(math.pi / 2, self.s), "right_sonar": _fan(-math.pi / 2, self.s),
         }
 
     def _imu(self, now: float, sim: QuadrotorSim) -> ImuReading | None:
@@ -195,9 +220,10 @@ class SensorSuite:
         s = self.s
         if name in self._dirs:
             spec = s.tof if name == "bottom_tof" else s.sonar
-            rng = self._range(spec, sim.ray(pos, self._dirs[name]))
+            true_m, incidence = _first_echo(sim, pos, self._dirs[name])
+            rng = self._range(spec, true_m)
             spurious = self._faults.spurious_max_range.get(self._owner[name]) if name != "bottom_tof" else None
-            if spurious and rng is not None and sim.incidence_rad() > math.radians(s.grazing_deg):
+            if spurious and rng is not None and incidence > math.radians(s.grazing_deg):
                 if self.fault_rng.random() < spurious:
                     rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
             if name == "bottom_sonar":
