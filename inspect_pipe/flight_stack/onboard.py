@@ -49,6 +49,9 @@ class OnboardStack:
         self.controller = FlightController(p.control)
         self._last_now: float | None = None
         self._last_thrust = 0.0
+        # Height the take-off promised (hover_height_m) and not yet reached: the height hold does
+        # not settle below it unless the operator asks to descend.
+        self._climb_to_m: float | None = None
 
     @property
     def fsm(self) -> FlightState:
@@ -84,6 +87,9 @@ class OnboardStack:
         ctrl = self.controller
         if state is FlightState.FLYING and before is FlightState.TAKING_OFF:
             ctrl.hold_height(max(fm.hover_height_m, est.altitude_m))
+            self._climb_to_m = fm.hover_height_m
+        elif state is not FlightState.FLYING:
+            self._climb_to_m = None
 
         # Alarm modes: the filled "+val." vertical speed, seen by a speed loop whose integrators
         # hold the hover trim, is what brings the vehicle down (Table I); no height hold.
@@ -108,6 +114,7 @@ class OnboardStack:
             cmd = beh.command
             if alarm:
                 cmd = SpeedCommand(cmd.vx_m_s, cmd.vy_m_s, 0.0, cmd.yaw_rate_rad_s)
+            self._finish_takeoff_climb(cmd, est)
             setpoint = ctrl.update(cmd, est, dt, allow_height_hold=not alarm, freeze_integrators=alarm)
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
@@ -132,3 +139,20 @@ class OnboardStack:
             fsm=state,
             inspection_mode=self.behaviors.inspection_mode,
         )
+
+    def _finish_takeoff_climb(self, cmd: SpeedCommand, est: StateEstimate) -> None:
+        """Keep the take-off's hover height as the floor of the height hold until it is reached.
+
+        The flight machine hands over to FLYING at ``takeoff_end_height_m`` (0.5 m); a slow climb
+        (heavy vehicle, weak motors) then met an operator's short climb command that was meant to
+        start from the hover height, and the hold latched at 0.6 m, level with hatch coamings
+        (safety campaign, +17 % mass: flew into a 0.51 m floor step). A descent command ends it."""
+        target = self._climb_to_m
+        if target is None:
+            return
+        if est.altitude_m >= target - 0.05 or cmd.vz_m_s < 0.0:
+            self._climb_to_m = None
+            return
+        ctrl = self.controller
+        if ctrl.height_ref_m is not None and ctrl.height_ref_m < target:
+            ctrl.hold_height(target)

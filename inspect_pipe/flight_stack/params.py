@@ -62,6 +62,11 @@ class BehaviorParams:
     repulsion_deadband_m: float = param(
         0.05, 0.0, 0.3, "m", "inside the safe distance by less than this: hold (0), no repulsion"
     )
+    link_loss_deadband_m: float = param(
+        0.2, 0.0, 0.5, "m",
+        "while the link is lost (waiting_for_connectivity): the repulsion's dead band; the vehicle holds "
+        "station a little inside the safe distance instead of backing away",
+    )
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
     stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
     floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")

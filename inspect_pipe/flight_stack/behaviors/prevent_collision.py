@@ -23,7 +23,7 @@ class PreventCollision:
     def activate(self) -> None:
         pass
 
-    def _axis(self, distance_m: float | None, closing_m_s: float) -> float | None:
+    def _axis(self, distance_m: float | None, closing_m_s: float, deadband_m: float) -> float | None:
         """Speed along the direction towards the obstacle (negative: away), or None."""
         p = self.p
         if distance_m is None:
@@ -31,7 +31,7 @@ class PreventCollision:
         if distance_m < p.safe_distance_m:
             return -repulsion_m_s(
                 distance_m, safe_m=p.safe_distance_m, gain_1_s=p.repulsion_gain_1_s,
-                max_m_s=p.repulsion_max_m_s, deadband_m=p.repulsion_deadband_m,
+                max_m_s=p.repulsion_max_m_s, deadband_m=deadband_m,
             )
         if must_stop(
             distance_m, closing_m_s, safe_m=p.safe_distance_m,
@@ -55,10 +55,15 @@ class PreventCollision:
     def update(self, inputs: BehaviorInputs, dt: float) -> AxisVector | None:
         if not inputs.flying:
             return None
-        c, e = inputs.clearance, inputs.estimate
-        vx = self._axis(c.front_m, e.vx_m_s)
-        left = self._axis(c.left_m, e.vy_m_s)
-        right = self._axis(c.right_m, -e.vy_m_s)
+        c, e, p = inputs.clearance, inputs.estimate, self.p
+        # Link lost: waiting_for_connectivity holds station. A vehicle resting a little inside the
+        # safe distance (the stop's tolerance, a gust) holds there rather than backing away: the
+        # safety campaign found link-loss "hovers" 0.5-1.4 s late from 0.02-0.1 m/s repulsions
+        # 5-12 cm inside the line. Deeper inside, the repulsion acts as always.
+        band = p.repulsion_deadband_m if inputs.link_ok else max(p.repulsion_deadband_m, p.link_loss_deadband_m)
+        vx = self._axis(c.front_m, e.vx_m_s, band)
+        left = self._axis(c.left_m, e.vy_m_s, band)
+        right = self._axis(c.right_m, -e.vy_m_s, band)
         if left is None and right is None:
             vy = None
         else:
