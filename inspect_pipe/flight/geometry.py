@@ -61,5 +61,18 @@ class HoldGeometry:
             d = min(d, math.sqrt(dx * dx + dy * dy + dz * dz))
         return d
 
+    def side_distance(self, x: float, y: float, z: float) -> float:
+        """Like :meth:`wall_distance`, but a box whose top is straight below the centre counts as
+        floor (a surface to land on), not as an obstacle."""
+        d = min(self.length - x, x, self.half_w - y, y + self.half_w)
+        for (x0, y0, z0), (x1, y1, z1) in self.boxes:
+            dx = max(x0 - x, 0.0, x - x1)
+            dy = max(y0 - y, 0.0, y - y1)
+            if dx == 0.0 and dy == 0.0 and z >= z1:
+                continue
+            dz = max(z0 - z, 0.0, z - z1)
+            d = min(d, math.sqrt(dx * dx + dy * dy + dz * dz))
+        return d
+
     def floor_distance(self, z: float) -> float:
         return z

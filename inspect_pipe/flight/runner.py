@@ -151,11 +151,12 @@ def run_scenario(
 
         x, y, z = sim.position
         dist = geometry.clearances(x, y, z)
-        # A wall or box inside the 0.35 m sphere is a collision; the floor only when hit hard
-        # (a touchdown faster than a landing gear takes), since landing is touching the floor.
+        # A wall or a box's side inside the 0.35 m sphere is a collision; the floor, or the top of a
+        # box straight below, only when hit hard (a touchdown faster than a landing gear takes),
+        # since landing is touching them.
         vz_true = sim.velocity[2]
-        on_floor = z - parts.vehicle.leg_height_m < 0.02
-        collided = geometry.wall_distance(x, y, z) < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
+        on_floor = dist.down - parts.vehicle.leg_height_m < 0.02
+        collided = geometry.side_distance(x, y, z) < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
         prev_vz = vz_true
         if on_tick is not None:
             rpy = sim.euler()

@@ -56,12 +56,14 @@ class FlightController:
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
         self.vertical_mode = VerticalMode.SPEED
+        self._last_az = 0.0  # the height loop's last vertical acceleration command
 
     def reset(self) -> None:
         for pid in (self.pid_vx, self.pid_vy, self.pid_vz, self.pid_height):
             pid.reset()
         self.height_ref_m = None
         self.vertical_mode = VerticalMode.SPEED
+        self._last_az = 0.0
 
     def hold_height(self, ref_m: float) -> None:
         self.height_ref_m = ref_m
@@ -107,9 +109,14 @@ class FlightController:
             stalled = (err > band and est.vz_m_s < towards) or (err < -band and est.vz_m_s > -towards)
             az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators or not (near or stalled))
             trim = self.pid_height.integral
+            self._last_az = az
         else:
             if self.vertical_mode is VerticalMode.HEIGHT:
-                self.pid_vz.reset(self.pid_height.integral)
+                # Hand over the height loop's whole output, not only its integrator: while it was
+                # correcting a sink (battery sag) its P and D terms carried part of the thrust, and
+                # an alarm mode that took over then dropped it (safety campaign: sank onto a box).
+                lim = self.pid_vz.integral_limit
+                self.pid_vz.reset(max(-lim, min(lim, self._last_az)))
             self.height_ref_m = None
             az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators)
             trim = self.pid_vz.integral

@@ -32,19 +32,22 @@ class RangeObserver:
     accelerometer bias would leave a steady rate error of k1*bias/k2, and the vehicle would creep.
     """
 
-    def __init__(self, *, k1: float, k2: float, k3: float = 0.0, max_gap_s: float = 1.0) -> None:
+    def __init__(self, *, k1: float, k2: float, k3: float = 0.0, max_gap_s: float = 1.0, max_bias: float = 0.5) -> None:
         self.k1, self.k2, self.k3 = k1, k2, k3
+        self.max_bias = max_bias  # m/s^2: a calibrated accelerometer's residual bias is far below
         self.bias = 0.0
         self.max_gap_s = max_gap_s
         self.value: float | None = None
         self.rate = 0.0
         self.t = 0.0
         self.last_sample_t: float | None = None
+        self.rate_measured = False  # the last propagation took a measured rate (optical flow)
 
     def propagate(self, t: float, accel: float = 0.0, rate: float | None = None) -> None:
         """Advance to ``t`` with ``accel``; or with a measured ``rate`` that replaces the estimate."""
         dt = t - self.t
         self.t = t
+        self.rate_measured = rate is not None
         if self.value is None or dt <= 0.0:
             if rate is not None:
                 self.rate = rate
@@ -69,8 +72,15 @@ class RangeObserver:
         ts = min(max(t_meas - last, 1e-3), 0.3)
         r = z - self.at(t_meas)
         self.value += min(self.k1 * ts, 1.0) * r
+        if self.rate_measured:
+            # The rate comes from optical flow, not from the accelerometer: the residual says
+            # nothing about the accelerometer's bias. Integrated anyway, sonar noise walked the
+            # bias to ~3 m/s^2 over a long flight, and the first IMU-propagated second after a
+            # bottom-flow loss drove the speed estimate the wrong way (safety campaign: mode 2 at
+            # a wall, estimated -0.7 m/s while flying into it at +0.7 m/s).
+            return
         self.rate += self.k2 * ts * r
-        self.bias -= self.k3 * ts * r
+        self.bias = max(-self.max_bias, min(self.max_bias, self.bias - self.k3 * ts * r))
 
 
 class HeightEstimator:
@@ -183,6 +193,7 @@ class MAVStateUpdater:
         self._last_front_stamp = -1.0
         self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
         self._dr_v = (0.0, 0.0)  # horizontal speed carried through the alarm modes (IMU)
+        self._dr_vz = 0.0  # vertical speed carried through the alarm modes (IMU)
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
@@ -251,10 +262,21 @@ class MAVStateUpdater:
             self._last_height_stamp = source.stamp_s
             self.height.update(source.range_m, source.stamp_s - latency)  # type: ignore[arg-type]
 
-        if mode < 0:
-            vz = p.alarm_climb_m_s  # "+val.": the controllers will make the vehicle descend
+        # "+val." (Table I): the alarm modes report a climb so that the speed loop descends. Filled
+        # in alone, a constant +val is an error the loop never removes: it descended faster and
+        # faster (safety campaign: every range sensor lost, 0.4-0.8 m/s into a coaming below).
+        # The val is added to the last vertical speed carried on with the IMU instead, so the
+        # loop settles at a steady descent of val. Mode -1 still has the TeraRanger's rate.
+        if mode == EstimationMode.ALARM_TOF:
+            vz = self.height.rate_m_s + p.alarm_climb_m_s  # the TeraRanger still measures it
+            self._dr_vz = self.height.rate_m_s
+        elif mode < 0:
+            k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
+            self._dr_vz = (self._dr_vz + az * dt) * k
+            vz = self._dr_vz + p.alarm_climb_m_s
         else:
             vz = vz_flow if vz_flow is not None else self.height.rate_m_s
+            self._dr_vz = vz
 
         est = StateEstimate(
             height_m=self.height.height_m,

@@ -40,7 +40,7 @@ class FlightMachine:
     flying -> landing: alarm mode -1 below that height, or in any alarm mode the jolt of
     touching the floor (mode -2 has no height reference: the descent ends on the floor).
     landing -> landed: touchdown (height at the sonar's minimum, no vertical speed) and the thrust
-    ramp-down finished, or the ramp's time-out.
+    ramp-down finished, or the ramp's time-out (only without a height reference or below 0.5 m).
     """
 
     def __init__(self, params: FlightMachineParams | None = None) -> None:
@@ -80,8 +80,19 @@ class FlightMachine:
             elif (s is FlightState.DESCENDING or est.mode == EstimationMode.ALARM_TOF) and est.height_m < p.descend_end_height_m:
                 self._go(FlightState.LANDING, now)
         elif s is FlightState.LANDING:
-            on_ground = (est.height_m <= 0.35 and abs(est.vz_m_s) < 0.15) or ev.impact
-            if self.touchdown_s is None and (on_ground or self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0):
+            # Down: the height at its sensor's minimum (the HRLV sonar reports 0.3 m when closer;
+            # in mode -1 only the TeraRanger measures, down to 0.2 m: at 0.35 m the thrust ramp
+            # began 0.27 m above the floor and the vehicle dropped onto it at 1 m/s).
+            down_m = 0.25 if est.mode == EstimationMode.ALARM_TOF else 0.35
+            on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
+            # The time-out stands in for a touchdown the sensors cannot confirm; with a valid
+            # height well above the floor the vehicle is not down (safety campaign: a battery sag
+            # ended mid-landing, the vehicle climbed back to 1 m, the time-out cut the thrust
+            # there and it fell at 2.3 m/s).
+            timed_out = self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0 and (
+                est.mode < 0 or est.height_m <= 0.5
+            )
+            if self.touchdown_s is None and (on_ground or timed_out):
                 self.touchdown_s = now
             if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:
                 self._go(FlightState.LANDED, now)

@@ -115,7 +115,11 @@ class OnboardStack:
             if alarm:
                 cmd = SpeedCommand(cmd.vx_m_s, cmd.vy_m_s, 0.0, cmd.yaw_rate_rad_s)
             self._finish_takeoff_climb(cmd, est)
-            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=not alarm, freeze_integrators=alarm)
+            # In the alarm modes the vertical speed is the IMU-carried speed plus "+val", a real
+            # speed error, so the vertical integrator keeps working: frozen, it could not make up
+            # a thrust loss that began just before (safety campaign: battery sag, then every range
+            # sensor lost: sank faster and faster onto a coaming). XY integrators stay frozen.
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm)
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
             vz = 0.0 if alarm else -fm.descend_speed_m_s

@@ -38,7 +38,7 @@ class EstimationParams:
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s")
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
     height_jump_m: float = param(0.25, 0.05, 2.0, "m", "range change not explained by vertical motion")
-    alarm_climb_m_s: float = param(0.1, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes")
+    alarm_climb_m_s: float = param(0.2, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes: the steady alarm descent speed")
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
