@@ -49,12 +49,14 @@ class FlightMachine:
         self.entered_s = 0.0
         self.high_thrust_s = 0.0
         self.touchdown_s: float | None = None
+        self._ground_s = 0.0  # how long the landing has looked like the ground
 
     def _go(self, state: FlightState, now: float) -> None:
         self.state = state
         self.entered_s = now
         self.high_thrust_s = 0.0
         self.touchdown_s = None
+        self._ground_s = 0.0
 
     def time_in_state(self, now: float) -> float:
         return now - self.entered_s
@@ -86,13 +88,22 @@ class FlightMachine:
             down_m = 0.25 if est.mode == EstimationMode.ALARM_TOF else 0.35
             on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
             # The time-out stands in for a touchdown the sensors cannot confirm; with a valid
-            # height well above the floor the vehicle is not down (safety campaign: a battery sag
+            # height well above the floor, or still descending, the vehicle is not down (safety campaign: a battery sag
             # ended mid-landing, the vehicle climbed back to 1 m, the time-out cut the thrust
             # there and it fell at 2.3 m/s).
             timed_out = self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0 and (
-                est.mode < 0 or est.height_m <= 0.5
+                est.mode < 0 or (est.height_m <= 0.5 and abs(est.vz_m_s) < 0.1)
             )
-            if self.touchdown_s is None and (on_ground or timed_out):
+            # On the ground for a moment, not at a bounce's turning point (safety campaign: a
+            # battery sag's recovery bounced the vehicle through 0.35 m with zero speed; the ramp
+            # began and it fell from 0.57 m). A vehicle back above 0.5 m is not down.
+            if on_ground and not ev.impact:
+                self._ground_s = self._ground_s + dt
+            else:
+                self._ground_s = 0.0
+            if self.touchdown_s is not None and est.mode >= 0 and est.height_m > 0.5:
+                self.touchdown_s = None
+            if self.touchdown_s is None and (self._ground_s >= p.touchdown_confirm_s or ev.impact or timed_out):
                 self.touchdown_s = now
             if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:
                 self._go(FlightState.LANDED, now)

@@ -52,6 +52,7 @@ class OnboardStack:
         # Height the take-off promised (hover_height_m) and not yet reached: the height hold does
         # not settle below it unless the operator asks to descend.
         self._climb_to_m: float | None = None
+        self._touchdown_thrust: float | None = None  # thrust when the landing's touchdown was detected
 
     @property
     def fsm(self) -> FlightState:
@@ -90,6 +91,10 @@ class OnboardStack:
             self._climb_to_m = fm.hover_height_m
         elif state is not FlightState.FLYING:
             self._climb_to_m = None
+        if state is not FlightState.LANDING or machine.touchdown_s is None:
+            self._touchdown_thrust = None
+        elif self._touchdown_thrust is None:
+            self._touchdown_thrust = self._last_thrust
 
         # Alarm modes: the filled "+val." vertical speed, seen by a speed loop whose integrators
         # hold the hover trim, is what brings the vehicle down (Table I); no height hold.
@@ -129,7 +134,7 @@ class OnboardStack:
             cmd = SpeedCommand(0.0, 0.0, 0.0 if alarm else -fm.landing_speed_m_s, 0.0)
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm,
-                thrust_cap_frac=machine.thrust_cap(now_s, p.control.hover_thrust_frac),
+                thrust_cap_frac=machine.thrust_cap(now_s, self._ramp_from_thrust(p.control.hover_thrust_frac)),
             )
             names = tuple(n for n in names if n == "low_battery_land")
         self._last_thrust = setpoint.thrust_frac
@@ -160,3 +165,12 @@ class OnboardStack:
         ctrl = self.controller
         if ctrl.height_ref_m is not None and ctrl.height_ref_m < target:
             ctrl.hold_height(target)
+
+    def _ramp_from_thrust(self, nominal_hover_frac: float) -> float:
+        """Thrust the landing ramp starts from: what the vehicle was using when it touched down.
+
+        The nominal hover fraction is right for the nominal airframe only; with weak motors
+        (-22 % thrust) a ramp from it cut a fifth of the thrust at once, 0.3 m above the floor
+        (the sonar's minimum), and the vehicle dropped at 1.1 m/s (safety campaign)."""
+        t = self._touchdown_thrust
+        return nominal_hover_frac if t is None or t <= 0.0 else min(t, 1.0)

@@ -114,6 +114,7 @@ class FlightMachineParams:
     hover_height_m: float = param(1.0, 0.5, 5.0, "m", "height held after take-off")
     descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s")
     descend_end_height_m: float = param(0.5, 0.2, 2.0, "m", "descending -> landing below this")
+    touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s")
     impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")

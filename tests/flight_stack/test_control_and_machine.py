@@ -63,9 +63,27 @@ def test_flight_machine_full_cycle():
     assert _run(m, 1.0, _est(0.55)) is FlightState.FLYING  # above 0.5 m
     assert _run(m, 5.0, _est(2.0), land_requested=True) is FlightState.DESCENDING
     assert _run(m, 8.0, _est(0.45, vz=-0.4)) is FlightState.LANDING  # about 0.5 m
-    assert _run(m, 9.0, _est(0.3, vz=0.0)) is FlightState.LANDING  # touchdown: ramp starts
-    assert m.thrust_cap(9.0 + 0.75, 0.45) == pytest.approx(0.225)
-    assert _run(m, 10.6, _est(0.3)) is FlightState.LANDED
+    # touchdown once the ground-like height and speed have held for touchdown_confirm_s (0.2 s)
+    for k in range(10):
+        assert _run(m, 9.0 + 0.02 * k, _est(0.3, vz=0.0)) is FlightState.LANDING
+        assert m.touchdown_s is None
+    _run(m, 9.2, _est(0.3, vz=0.0))
+    assert m.touchdown_s == pytest.approx(9.2)  # ramp starts
+    assert m.thrust_cap(9.2 + 0.75, 0.45) == pytest.approx(0.225)
+    assert _run(m, 10.8, _est(0.3)) is FlightState.LANDED
+
+
+def test_landing_touchdown_is_cancelled_when_the_vehicle_is_back_above_half_a_metre():
+    m = FlightMachine()
+    _run(m, 0.0, _est(0.3), takeoff_pressed=True)
+    _run(m, 1.0, _est(0.55))
+    _run(m, 5.0, _est(2.0), land_requested=True)
+    assert _run(m, 8.0, _est(0.45, vz=-0.4)) is FlightState.LANDING
+    for k in range(11):
+        _run(m, 9.0 + 0.02 * k, _est(0.3, vz=0.0))
+    assert m.touchdown_s is not None
+    _run(m, 9.3, _est(0.6, vz=0.3))  # a bounce: back above 0.5 m
+    assert m.touchdown_s is None and m.thrust_cap(9.3, 0.45) == 1.0
 
 
 def test_taking_off_ends_after_time_at_high_thrust_without_height():
