@@ -182,9 +182,9 @@ def run_scenario(
                     wind = [w + g for w, g in zip(wind, f.wind_m_s)]  # type: ignore[arg-type]
             sim.wind_m_s = tuple(wind)  # type: ignore[assignment]
             faults = _sensor_faults(scenario, now)
-            sim.step(substeps, lambda s: sensors.sample(s, dropped, faults))  # type: ignore[arg-type]
+            sim.step(substeps, sensors.sampler(dropped, faults))
         else:
-            sim.step(substeps, lambda s: sensors.sample(s, dropped))  # type: ignore[arg-type]
+            sim.step(substeps, sensors.sampler(dropped))
         battery.drain(tick_dt, sim.thrust_n / (hover * parts.vehicle.max_thrust_n))
     return FlightResult(
         status=status,

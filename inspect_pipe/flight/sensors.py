@@ -96,13 +96,15 @@ def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, f
     return tuple((math.cos(axis_yaw_rad + o), math.sin(axis_yaw_rad + o), 0.0) for o in offsets)
 
 
-def _first_echo(sim: QuadrotorSim, pos, directions) -> tuple[float | None, float]:
-    """Nearest hit over the beam's rays and the incidence of that ray (rad)."""
+def _first_echo(sim: QuadrotorSim, pos, directions, want_incidence: bool) -> tuple[float | None, float]:
+    """Nearest hit over the beam's rays and, if asked, the incidence of that ray (rad)."""
     best, incidence = None, 0.0
     for d in directions:
         r = sim.ray(pos, d)
         if r is not None and (best is None or r < best):
-            best, incidence = r, sim.incidence_rad()
+            best = r
+            if want_incidence:
+                incidence = sim.incidence_rad()
     return best, incidence
 _RANGE_CHANNELS = frozenset({"bottom_sonar", "front_sonar", "left_sonar", "right_sonar", "bottom_tof"})
 
@@ -187,6 +189,16 @@ class SensorSuite:
         noisy = true_m + self.rng.gauss(0.0, spec.noise_m + spec.noise_per_m * true_m)
         return max(spec.min_range_m, round(noisy, 3))  # the HRLV reports its minimum when closer
 
+    @property
+    def next_due_s(self) -> float:
+        """Simulated time of the next sample of any channel (before it, ``sample`` does nothing)."""
+        return self._next_due
+
+    def sampler(self, dropped: frozenset[SensorName], faults: SensorFaults = NO_FAULTS) -> "_Sampler":
+        """``sample`` with these faults as a callable for ``QuadrotorSim.step``; it carries
+        ``next_due_s`` so the physics loop skips the call between samples."""
+        return _Sampler(self, dropped, faults)
+
     def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName], faults: SensorFaults = NO_FAULTS) -> None:
         t = sim.t
         if t + 1e-9 < self._next_due:
@@ -220,9 +232,9 @@ class SensorSuite:
         s = self.s
         if name in self._dirs:
             spec = s.tof if name == "bottom_tof" else s.sonar
-            true_m, incidence = _first_echo(sim, pos, self._dirs[name])
-            rng = self._range(spec, true_m)
             spurious = self._faults.spurious_max_range.get(self._owner[name]) if name != "bottom_tof" else None
+            true_m, incidence = _first_echo(sim, pos, self._dirs[name], bool(spurious))
+            rng = self._range(spec, true_m)
             if spurious and rng is not None and incidence > math.radians(s.grazing_deg):
                 if self.fault_rng.random() < spurious:
                     rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
@@ -263,3 +275,17 @@ class SensorSuite:
             ch.deliver(now)
             out[name] = ch.latest
         return Measurements(**out)
+
+
+class _Sampler:
+    __slots__ = ("suite", "dropped", "faults")
+
+    def __init__(self, suite: SensorSuite, dropped: frozenset[SensorName], faults: SensorFaults) -> None:
+        self.suite, self.dropped, self.faults = suite, dropped, faults
+
+    @property
+    def next_due_s(self) -> float:
+        return self.suite._next_due
+
+    def __call__(self, sim: QuadrotorSim) -> None:
+        self.suite.sample(sim, self.dropped, self.faults)

@@ -136,7 +136,7 @@ class QuadrotorSim:
         self._ray_pnt = np.zeros(3)
         self._geomid = np.zeros(1, dtype=np.int32)
         self._xfrc = self.data.xfrc_applied[self.body]
-        self._last_incidence = 0.0
+        self._last_hit: tuple | None = None
         # Faults the scenario injects: wind (world frame, m/s) seen through the rotor drag, and
         # the share of maximum thrust still available (battery sag).
         self.wind_m_s = (0.0, 0.0, 0.0)
@@ -160,7 +160,7 @@ class QuadrotorSim:
 
     def euler(self) -> tuple[float, float, float]:
         """(roll, pitch, yaw) in rad, ZYX convention."""
-        w, x, y, z = (float(v) for v in self.data.qpos[3:7])
+        w, x, y, z = self.data.qpos[3:7].tolist()
         roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
         pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
@@ -175,7 +175,8 @@ class QuadrotorSim:
 
     def step(self, n: int = 1, after_step: Callable[["QuadrotorSim"], None] | None = None) -> None:
         """``n`` physics steps holding the current set-point; ``after_step(self)`` after each
-        (the sensors sample there). The air disturbance changes once per call."""
+        (the sensors sample there), or only once ``sim.t`` reaches ``after_step.next_due_s`` when
+        the callable has that attribute. The air disturbance changes once per call."""
         m, d = self.model, self.data
         fw, veh = self.firmware, self.vehicle
         dt = self.dt
@@ -229,7 +230,7 @@ class QuadrotorSim:
             xfrc[5] = R[6] * tx + R[7] * ty + R[8] * tz
             mujoco.mj_step(m, d)
             self.t += dt
-            if after_step is not None:
+            if after_step is not None and self.t + 1e-9 >= getattr(after_step, "next_due_s", -math.inf):
                 after_step(self)
 
     # ------------------------------------------------------------------ sensing
@@ -246,13 +247,16 @@ class QuadrotorSim:
         dist = mujoco.mj_ray(self.model, self.data, pnt, v, None, True, self.body, self._geomid)
         if dist < 0:
             return None
-        # Incidence from the hit face's normal (every surface is an axis-aligned box).
-        g = int(self._geomid[0])
-        c, half = self.model.geom_pos[g], self.model.geom_size[g]
-        k = max(range(3), key=lambda i: abs(pnt[i] + dist * v[i] - c[i]) / half[i])
-        self._last_incidence = math.acos(min(1.0, abs(float(v[k]))))
+        # Incidence is worked out on demand (only the spurious-echo fault needs it).
+        self._last_hit = (pnt.tolist(), v.tolist(), float(dist), int(self._geomid[0]))
         return float(dist)
 
     def incidence_rad(self) -> float:
-        """Angle between the last ray that hit and the normal of the surface it hit (rad)."""
-        return self._last_incidence
+        """Angle between the last ray that hit and the normal of the surface it hit (rad); the
+        hit face is the one of the (axis-aligned box) geom the hit point is farthest out on."""
+        if self._last_hit is None:
+            return 0.0
+        pnt, v, dist, g = self._last_hit
+        c, half = self.model.geom_pos[g], self.model.geom_size[g]
+        k = max(range(3), key=lambda i: abs(pnt[i] + dist * v[i] - c[i]) / half[i])
+        return math.acos(min(1.0, abs(float(v[k]))))

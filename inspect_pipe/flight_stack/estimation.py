@@ -131,8 +131,11 @@ class RangeSlope:
     def __init__(self, *, window_s: float = 0.45, max_gap_s: float = 0.3, min_samples: int = 3) -> None:
         self.window_s, self.max_gap_s, self.min_samples = window_s, max_gap_s, min_samples
         self.samples: list[tuple[float, float]] = []
+        self._fit: float | None = None  # the line's slope over the current samples (cached)
+        self._fit_valid = False
 
     def add(self, t: float, range_m: float | None) -> None:
+        self._fit_valid = False
         if range_m is None:
             self.samples.clear()
             return
@@ -146,13 +149,14 @@ class RangeSlope:
         s = self.samples
         if len(s) < self.min_samples or now - s[-1][0] > self.max_gap_s + 0.1:
             return None
-        n = len(s)
-        tm = sum(t for t, _ in s) / n
-        rm = sum(r for _, r in s) / n
-        den = sum((t - tm) ** 2 for t, _ in s)
-        if den <= 0.0:
-            return None
-        return sum((t - tm) * (r - rm) for t, r in s) / den
+        if not self._fit_valid:  # samples come at 10 Hz, the question at 50 Hz
+            n = len(s)
+            tm = sum(t for t, _ in s) / n
+            rm = sum(r for _, r in s) / n
+            den = sum((t - tm) ** 2 for t, _ in s)
+            self._fit = None if den <= 0.0 else sum((t - tm) * (r - rm) for t, r in s) / den
+            self._fit_valid = True
+        return self._fit
 
 
 @dataclass(frozen=True, slots=True)
