@@ -32,19 +32,24 @@ from inspect_pipe.saliency_defects import (  # noqa: E402
 from inspect_pipe.saliency_defects._metrics import (  # noqa: E402
     best_f, max_fbeta, saliency_curves, to_u8, tolerance_counts,
 )
-from inspect_pipe.saliency_defects._model import class_logit, sigmoid  # noqa: E402
+from inspect_pipe.saliency_defects._model import class_logit, sigmoid, to_full_res  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 METHODS = ("bayes", "naive_bayes", "max", "norm_sum")
 
 
-def _maps(fs, cm) -> dict[str, np.ndarray]:
+def _maps(img, cm) -> dict[str, np.ndarray]:
+    """Each combination's map of class ``cm`` at the image's resolution (features at the class's
+    pyramid level, maps brought to full resolution the way detection does)."""
+    fs = compute_features(img, cm.feature_names, level=cm.level)
     cons = conspicuity_maps(fs, cm)
+    hw = img.shape[:2]
+    full = lambda m: to_full_res(m, hw, cm.level)  # noqa: E731
     return {
-        "bayes": sigmoid(class_logit(fs, cm)),
-        "naive_bayes": sigmoid(class_logit(fs, cm, naive=True)),
-        "max": combine_max(cons),
-        "norm_sum": combine_normalised_sum(cons),
+        "bayes": sigmoid(full(class_logit(fs, cm))),
+        "naive_bayes": sigmoid(full(class_logit(fs, cm, naive=True))),
+        "max": full(combine_max(cons)),
+        "norm_sum": full(combine_normalised_sum(cons)),
     }
 
 
@@ -82,9 +87,7 @@ def handset_rust_rule(img: np.ndarray) -> np.ndarray:
 def itti_map(img: np.ndarray) -> np.ndarray:
     """Itti-style saliency: intensity and orientation centre-surround maps, each normalised by
     the per-image N(.) operator (scale to [0,1], weight by (1 - mean of local maxima)^2), summed."""
-    from inspect_pipe.saliency_defects._features import FEATURE_NAMES
-
-    fs = compute_features(img)
+    fs = compute_features(img, ("int_cs_abs", "ori_cs"))
 
     def N(m):
         m = (m - m.min()) / (m.max() - m.min() + 1e-9)
@@ -93,7 +96,6 @@ def itti_map(img: np.ndarray) -> np.ndarray:
         mbar = peaks.mean() if peaks.size else 0.0
         return m * (1 - mbar) ** 2
 
-    assert "int_cs_abs" in FEATURE_NAMES
     return N(fs["int_cs_abs"]) + N(fs["ori_cs"])
 
 
@@ -107,12 +109,12 @@ def bench_cracks(root: Path, model) -> tuple[list[str], dict]:
     ois = {m: [] for m in METHODS}
     for it in items:
         img, gt = it.load()
-        fs = compute_features(img)
-        for m, p in _maps(fs, cm).items():
+        maps = _maps(img, cm)
+        for m, p in maps.items():
             c = tolerance_counts(p, gt, 2.0)
             _add(sums, m, c)
             ois[m].append(best_f(c)[0])
-        p8 = to_u8(sigmoid(class_logit(fs, cm)))
+        p8 = to_u8(maps["bayes"])
         op_c = tolerance_counts(decide(p8, cm)[0].astype(np.uint8) * 255, gt, 2.0)
         op = op_c if op is None else op + op_c
         fv, fm = frangi_otsu(img)
@@ -143,12 +145,12 @@ def bench_corrosion(root: Path, model) -> tuple[list[str], dict]:
     inter = union = 0
     for it in items:
         img, gt = it.load()
-        fs = compute_features(img)
-        for m, p in _maps(fs, cm).items():
+        maps = _maps(img, cm)
+        for m, p in maps.items():
             c = tolerance_counts(p, gt, 0)
             _add(sums, m, c)
             ois[m].append(best_f(c)[0])
-        p8 = to_u8(sigmoid(class_logit(fs, cm)))
+        p8 = to_u8(maps["bayes"])
         mask = decide(p8, cm)[0]
         inter += int((mask & gt).sum())
         union += int((mask | gt).sum())
@@ -177,8 +179,7 @@ def bench_steel(root: Path, model) -> tuple[list[str], dict]:
     curves = {m: ([], [], []) for m in (*METHODS, "itti")}
     for it in items:
         img, gt = it.load()
-        fs = compute_features(img)
-        maps = _maps(fs, cm)
+        maps = _maps(img, cm)
         maps["itti"] = itti_map(img)
         for m, p in maps.items():
             P, R, auc = saliency_curves(p, gt)
@@ -243,6 +244,13 @@ def bench_speed(data: Path, model) -> list[str]:
     return rows
 
 
+def _load() -> str:
+    try:
+        return f"{os.getloadavg()[0]:.1f}"
+    except OSError:  # platforms without getloadavg
+        return "?"
+
+
 def bench_mosaic_memory(data: Path) -> list[str]:
     """Peak resident memory of the ``inspect-pipe detect`` command on a 10,000 x 8,000 mosaic."""
     walls = sorted((data / "walls").glob("*.jp*g"))
@@ -280,7 +288,9 @@ def run(data: Path) -> str:
     corr_lines, corr = bench_corrosion(root, model)
     steel_lines, steel = bench_steel(root, model)
     acc_s = time.perf_counter() - t0
+    load0 = _load()
     speed = bench_speed(data, model)
+    load1 = _load()
     mem = bench_mosaic_memory(data)
     parts = [
         "## Defect detection (`inspect-pipe detect`)",
@@ -297,6 +307,9 @@ def run(data: Path) -> str:
         "| case | measured | target |",
         "|---|---|---|",
         *speed, *mem,
+        "",
+        f"Frame times are median (min) of 15 and 4 runs; the machine is shared, so they move with its load "
+        f"(1-minute load average {load0} before and {load1} after the frame timings, {os.cpu_count()} cores).",
         "",
         f"_Accuracy part took {acc_s:.0f} s._",
     ]

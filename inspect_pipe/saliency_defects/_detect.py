@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._features import ALIGN, SUPPORT_PX, check_image, compute_features
-from ._model import CONTEXT_SUPPORT_PX, ClassModel, DefectModel, class_logit, sigmoid
+from ._features import ALIGN, SUPPORT_PX, FeatureStack, check_image, compute_features
+from ._model import ClassModel, DefectModel, class_logit, context_reach_px, sigmoid, to_full_res
 
 #: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x margin px holds about
 #: 28 float32 feature maps at once: ~0.3 GB, independent of the image size.
@@ -50,16 +50,35 @@ class Detection:
 
 def _margin_px(model: DefectModel, kinds) -> int:
     m = max(
-        SUPPORT_PX + CONTEXT_SUPPORT_PX * (len(c.stages) - 1) + int(np.ceil(4 * c.smooth_sigma_px))
+        SUPPORT_PX
+        + 2**c.level * (sum(context_reach_px(st.names) for st in c.stages[1:]) + int(np.ceil(4 * c.smooth_sigma_px)) + 1)
         for c in (model.classes[k] for k in kinds)
     )
     return int(np.ceil(m / ALIGN) * ALIGN)
 
 
+def class_features(image: np.ndarray, cms) -> dict[int, FeatureStack]:
+    """The feature stacks the class models ``cms`` need: one per pyramid level, each holding the
+    union of those classes' features (computed once, shared between classes)."""
+    names: dict[int, list[str]] = {}
+    for cm in cms:
+        lst = names.setdefault(cm.level, [])
+        lst += [n for n in cm.feature_names if n not in lst]
+    shared: dict = {}  # pyramids and centre-surround maps, computed once for both levels
+    return {lv: compute_features(image, ns, level=lv, shared=shared) for lv, ns in sorted(names.items())}
+
+
+def class_logits(image: np.ndarray, cms, *, naive: bool = False) -> dict[str, np.ndarray]:
+    """Final logit map (H, W) float32 at the image's resolution of each class model in ``cms``."""
+    fss = class_features(image, cms)
+    hw = image.shape[:2]
+    return {cm.name: to_full_res(class_logit(fss[cm.level], cm, naive=naive), hw, cm.level) for cm in cms}
+
+
 def class_probabilities(image: np.ndarray, model: DefectModel, kinds, *, naive: bool = False) -> dict[str, np.ndarray]:
     """P(defect of class k | features) for each k in ``kinds``, (H, W) float32, whole image at once."""
-    fs = compute_features(image)
-    return {k: sigmoid(class_logit(fs, model.classes[k], naive=naive)) for k in kinds}
+    zs = class_logits(image, [model.classes[k] for k in kinds], naive=naive)
+    return {k: sigmoid(zs[k]) for k in kinds}
 
 
 def _to_u8(p: np.ndarray) -> np.ndarray:

@@ -27,10 +27,13 @@ ALIGN = 2**TOP_LEVEL
 #: (the Gaussian pyramid's weights beyond this are below float noise for the tables' bins).
 SUPPORT_PX = 4 * ALIGN
 
-#: Gabor orientations (rad) for orientation conspicuity and line orientations for crack evidence.
-GABOR_THETAS = tuple(np.arange(4) * np.pi / 4)
+#: Orientations (rad) of the orientation conspicuity and line orientations for crack evidence.
+ORI_THETAS = tuple(np.arange(4) * np.pi / 4)
 LINE_THETAS = tuple(np.arange(12) * np.pi / 12)
 LINE_LEN_PX = 11  # 11x11 is the largest kernel OpenCV filters directly (13+ switches to a DFT, 20x slower)
+
+#: Side (px at the features' level) of the box the region features (``*_mean``, ``val_std``) average.
+REGION = 31
 
 #: Names of the features, in the order of :func:`compute_features`'s output.
 FEATURE_NAMES: tuple[str, ...] = (
@@ -40,7 +43,7 @@ FEATURE_NAMES: tuple[str, ...] = (
     "rg_cs",  # signed red-green opponent contrast (rust raises R)
     "by_cs",  # signed blue-yellow opponent contrast
     "sat_cs",  # signed HSV-saturation contrast (rust raises S)
-    "ori_cs",  # orientation contrast: Gabor energy centre-surround, 4 orientations
+    "ori_cs",  # orientation contrast: steerable 2nd-derivative energy centre-surround, 4 orientations
     "sym",  # isotropic symmetry: blob-ness min(|l1|,|l2|) of the Hessian, signed, levels 1-3
     # corrosion: colour and roughness
     "hs",  # joint hue-saturation bin (categorical; index into an NH x NS table)
@@ -52,6 +55,11 @@ FEATURE_NAMES: tuple[str, ...] = (
     "lab_b",  # CIELAB b* (blue-yellow), smoothed
     "sat_mean",  # HSV saturation averaged over 31 px (colour of the surrounding region)
     "rchrom_mean",  # red chromaticity averaged over 31 px
+    "lab_a_mean",  # CIELAB a* averaged over 31 px (region colour)
+    "lab_b_mean",  # CIELAB b* averaged over 31 px
+    "val_mean",  # HSV value averaged over 31 px
+    "val_std",  # local standard deviation of HSV value over 31 px (region roughness)
+    "rough_mean",  # fine texture energy averaged over 31 px
     # cracks: thin, dark, elongated
     "ridge1",  # sigma^2 * largest Hessian eigenvalue at sigma 1 px (dark valley > 0)
     "ridge2",  # same at sigma 2 px
@@ -62,6 +70,12 @@ FEATURE_NAMES: tuple[str, ...] = (
     "coh",  # structure-tensor coherence at sigma 2 px (elongation)
 )
 
+#: The colour evidence among them (the corrosion cascade's colour model; see ``zc`` context maps).
+COLOUR_FEATURES = frozenset({
+    "rg_cs", "by_cs", "sat_cs", "hs", "rchrom", "lab_a", "lab_b", "sat_mean", "rchrom_mean",
+    "lab_a_mean", "lab_b_mean",
+})
+
 #: Hue-saturation table geometry for the corrosion colour model.
 N_HUE = 20
 N_SAT = 12
@@ -69,17 +83,26 @@ N_SAT = 12
 
 @dataclass(frozen=True)
 class FeatureStack:
-    """Feature maps of one image: ``data[k]`` is feature ``names[k]``, each (H, W) float32."""
+    """Feature maps of one image: ``maps[k]`` is feature ``names[k]``, each (H, W) float32 (views
+    into the padded maps, not copies); ``data`` stacks them into one (F, H, W) array."""
 
     names: tuple[str, ...]
-    data: np.ndarray  # (F, H, W) float32
+    maps: tuple[np.ndarray, ...]
+    level: int = 0  # pyramid level the maps are sampled at (1: half resolution)
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return self.data[self.names.index(name)]
+        return self.maps[self.names.index(name)]
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return dict(zip(self.names, self.maps))
+
+    @property
+    def data(self) -> np.ndarray:
+        return np.stack(self.maps) if self.maps else np.zeros((0, 0, 0), np.float32)
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.data.shape[1], self.data.shape[2]
+        return self.maps[0].shape if self.maps else (0, 0)
 
 
 def check_image(image: np.ndarray) -> None:
@@ -127,11 +150,18 @@ def _centre_surround(pyr: list[np.ndarray], *, signed: bool) -> np.ndarray:
     return acc
 
 
-_GABOR = [
-    cv2.getGaborKernel((7, 7), 1.5, th, 4.0, 0.5, 0.0, ktype=cv2.CV_32F) for th in GABOR_THETAS
-]
-for _k in _GABOR:
-    _k -= _k.mean()  # zero DC: no response to flat brightness
+def _hessian(img: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(dxx, dyy, dxy) of ``img`` smoothed by a Gaussian of ``sigma`` px."""
+    g = cv2.GaussianBlur(img, (0, 0), sigma) if sigma > 0 else img
+    return (cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3), cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3),
+            cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3))
+
+
+def _steered_energy(dxx: np.ndarray, dyy: np.ndarray, dxy: np.ndarray) -> list[np.ndarray]:
+    """|second derivative| along the ORI_THETAS (0, 45, 90, 135 deg), steered from the three
+    separable basis responses (Freeman & Adelson's steerable filters)."""
+    half = (dxx + dyy) * np.float32(0.5)
+    return [np.abs(dxx), np.abs(half + dxy), np.abs(dyy), np.abs(half - dxy)]
 
 
 def _line_kernels(n: int) -> list[np.ndarray]:
@@ -151,12 +181,10 @@ def _line_kernels(n: int) -> list[np.ndarray]:
 _LINES = _line_kernels(LINE_LEN_PX)
 
 
-def _hessian_eigs(img: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (l1 >= l2) of the sigma^2-normalised Hessian of ``img``."""
-    g = cv2.GaussianBlur(img, (0, 0), sigma) if sigma > 0 else img
-    dxx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
-    dyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
-    dxy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
+def _hessian_eigs(img: np.ndarray, sigma: float, hess=None) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (l1 >= l2) of the sigma^2-normalised Hessian of ``img`` (``hess``: its
+    (dxx, dyy, dxy) at ``sigma`` when already computed)."""
+    dxx, dyy, dxy = hess if hess is not None else _hessian(img, sigma)
     s2 = np.float32(max(sigma, 0.7) ** 2)
     half_tr = (dxx + dyy) * 0.5
     root = cv2.sqrt((dxx - dyy) * (dxx - dyy) * 0.25 + dxy * dxy)
@@ -172,94 +200,168 @@ def _dark_line(grey: np.ndarray) -> np.ndarray:
     return local - lo
 
 
-def compute_features(image: np.ndarray) -> FeatureStack:
-    """All features of an 8-bit BGR (or grey) image; see :data:`FEATURE_NAMES`.
+def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: dict | None = None) -> FeatureStack:
+    """Features ``names`` (default all, see :data:`FEATURE_NAMES`) of an 8-bit BGR (or grey) image.
 
-    Colour features of a grey image are those of a neutral grey (zero opponent contrast,
-    zero saturation).
+    ``level`` 0 computes them at full resolution; ``level`` 1 at half resolution (pyramid level 1,
+    maps of ceil(H/2) x ceil(W/2)): the local filters then have twice the reach in image pixels and
+    cost a quarter. The centre-surround maps live at pyramid level 1 either way. Only the
+    requested features are computed; calls on one image may pass one ``shared`` dict to reuse the
+    pyramids and centre-surround maps between levels. Colour features of a grey image are those
+    of a neutral grey (zero opponent contrast, zero saturation).
     """
     check_image(image)
+    names = FEATURE_NAMES if names is None else tuple(names)
+    unknown = set(names) - set(FEATURE_NAMES)
+    if unknown:
+        raise ValueError(f"unknown features {sorted(unknown)}")
+    if level not in (0, 1):
+        raise ValueError(f"feature level must be 0 or 1, got {level}")
+    want = set(names)
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     h, w = image.shape[:2]
-    img = _pad_to(image, ALIGN)
-    ph, pw = img.shape[:2]
-    if img.ndim == 2:
-        bgr = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    else:
-        bgr = img
-    f = bgr.astype(np.float32) * np.float32(1 / 255)
-    b, g, r = cv2.split(f)
-    grey = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
-    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV_FULL)  # H in 0..255 for the full circle
-    sat = hsv[:, :, 1].astype(np.float32) * np.float32(1 / 255)
-
-    full = (ph, pw)
+    sh = {} if shared is None else shared
+    if "pyr_i" not in sh:
+        img = _pad_to(image, ALIGN)
+        bgr0 = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img
+        grey0 = cv2.cvtColor(bgr0, cv2.COLOR_BGR2GRAY).astype(np.float32) * np.float32(1 / 255)
+        # grey pyramid indexed by level: level 0 full resolution, each level half the previous
+        sh["pyr_i"] = _pyramid(grey0, TOP_LEVEL)
+        sh["bgr"] = [bgr0, cv2.pyrDown(bgr0)]
+        sh["hess"] = {}  # level -> (dxx, dyy, dxy) at sigma 1
+    pyr_i = sh["pyr_i"]
+    bgr = sh["bgr"][level]
+    grey = pyr_i[level]
+    base = grey.shape
     out: dict[str, np.ndarray] = {}
 
-    # ---- saliency conspicuity over the Gaussian pyramid ----
-    pyr_i = _pyramid(grey, TOP_LEVEL)
-    cs = _centre_surround(pyr_i, signed=True)
-    out["int_cs"] = cs
-    out["int_cs_abs"] = _centre_surround(pyr_i, signed=False)
-    rg = r - g
-    by = b - (r + g) * np.float32(0.5)
-    out["rg_cs"] = _centre_surround(_pyramid(rg, TOP_LEVEL), signed=True)
-    out["by_cs"] = _centre_surround(_pyramid(by, TOP_LEVEL), signed=True)
-    out["sat_cs"] = _centre_surround(_pyramid(sat, TOP_LEVEL), signed=True)
-    ori = np.zeros(pyr_i[1].shape, np.float32)
-    for k in _GABOR:
-        pyr_o = [np.abs(cv2.filter2D(lv, -1, k)) if i >= 1 else None for i, lv in enumerate(pyr_i)]
-        pyr_o[0] = pyr_o[1]  # level 0 is never a centre or surround; placeholder
-        ori += _centre_surround(pyr_o, signed=False)
-    out["ori_cs"] = ori
-    sym = np.zeros(pyr_i[1].shape, np.float32)
-    for lv in (1, 2, 3):
-        l1, l2 = _hessian_eigs(pyr_i[lv], 1.0)
-        # both eigenvalues large and of one sign: rotationally symmetric blob (pit, rust spot)
-        blob = np.where(l1 * l2 > 0, np.sign(l1) * np.minimum(np.abs(l1), np.abs(l2)), 0.0)
-        sym += _to_level(blob.astype(np.float32), pyr_i[1].shape)
-    out["sym"] = sym
+    def rel(k: int) -> np.ndarray:  # grey at ``k`` levels above the base
+        return pyr_i[level + k]
+
+    def hess(lv: int):
+        if lv not in sh["hess"]:
+            sh["hess"][lv] = _hessian(pyr_i[lv], 1.0)
+        return sh["hess"][lv]
+
+    def cs(name: str, make):  # centre-surround maps at level 1, shared between levels
+        key = "cs:" + name
+        if key not in sh:
+            sh[key] = make()
+        return sh[key]
+
+    # ---- saliency conspicuity over the Gaussian pyramid (accumulated at level 1) ----
+    if "int_cs" in want:
+        out["int_cs"] = cs("int_cs", lambda: _centre_surround(pyr_i, signed=True))
+    if "int_cs_abs" in want:
+        out["int_cs_abs"] = cs("int_cs_abs", lambda: _centre_surround(pyr_i, signed=False))
+    if want & COLOUR_FEATURES:
+        f = bgr.astype(np.float32) * np.float32(1 / 255)
+        b, g, r = cv2.split(f)
+        hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV_FULL)  # H in 0..255 for the full circle
+        sat = hsv[:, :, 1].astype(np.float32) * np.float32(1 / 255)
+
+        def colour_cs(name: str) -> np.ndarray:
+            # colour planes of the level-1 image, pyramids above it
+            f1 = sh["bgr"][1].astype(np.float32) * np.float32(1 / 255)
+            b1, g1, r1 = cv2.split(f1)
+            if name == "rg_cs":
+                plane = r1 - g1
+            elif name == "by_cs":
+                plane = b1 - (r1 + g1) * np.float32(0.5)
+            else:
+                plane = cv2.cvtColor(sh["bgr"][1], cv2.COLOR_BGR2HSV_FULL)[:, :, 1].astype(np.float32) * np.float32(1 / 255)
+            pyr = [None] + _pyramid(plane, TOP_LEVEL - 1)
+            return _centre_surround(pyr, signed=True)
+
+        for name in ("rg_cs", "by_cs", "sat_cs"):
+            if name in want:
+                out[name] = cs(name, lambda name=name: colour_cs(name))
+    if "ori_cs" in want:
+        def ori() -> np.ndarray:
+            acc = np.zeros(pyr_i[1].shape, np.float32)
+            energies = [None] + [_steered_energy(*hess(lv)) for lv in range(1, TOP_LEVEL + 1)]
+            for k in range(len(ORI_THETAS)):
+                acc += _centre_surround([None if e is None else e[k] for e in energies], signed=False)
+            return acc
+        out["ori_cs"] = cs("ori_cs", ori)
+    if "sym" in want:
+        def sym() -> np.ndarray:
+            acc = np.zeros(pyr_i[1].shape, np.float32)
+            for lv in (1, 2, 3):
+                l1, l2 = _hessian_eigs(pyr_i[lv], 1.0, hess(lv))
+                # both eigenvalues large and of one sign: rotationally symmetric blob (pit, rust spot)
+                blob = np.where(l1 * l2 > 0, np.sign(l1) * np.minimum(np.abs(l1), np.abs(l2)), 0.0)
+                acc += _to_level(blob.astype(np.float32), pyr_i[1].shape)
+            return acc
+        out["sym"] = cs("sym", sym)
     for name in ("int_cs", "int_cs_abs", "rg_cs", "by_cs", "sat_cs", "ori_cs", "sym"):
-        out[name] = _to_level(out[name], full)
+        if name in out:
+            out[name] = _to_level(out[name], base)
 
     # ---- corrosion: colour and roughness ----
-    hsv_s = cv2.GaussianBlur(hsv, (0, 0), 1.0)
-    hbin = (hsv_s[:, :, 0].astype(np.int32) * N_HUE) >> 8
-    sbin = (hsv_s[:, :, 1].astype(np.int32) * N_SAT) >> 8
-    out["hs"] = (hbin * N_SAT + sbin).astype(np.float32)
-    out["val"] = cv2.GaussianBlur(hsv[:, :, 2].astype(np.float32) * np.float32(1 / 255), (0, 0), 1.0)
-    out["rchrom"] = cv2.GaussianBlur(r / (r + g + b + np.float32(0.03)), (0, 0), 1.0)
-    lab = cv2.cvtColor(cv2.GaussianBlur(bgr, (0, 0), 1.0), cv2.COLOR_BGR2LAB)
-    out["lab_a"] = lab[:, :, 1].astype(np.float32)
-    out["lab_b"] = lab[:, :, 2].astype(np.float32)
-    out["sat_mean"] = cv2.blur(sat, (31, 31))
-    out["rchrom_mean"] = cv2.blur(out["rchrom"], (31, 31))
-    hp = np.abs(grey - cv2.GaussianBlur(grey, (0, 0), 1.0))
-    out["rough"] = cv2.blur(hp, (9, 9))
-    l2i = pyr_i[2]
-    m = cv2.blur(l2i, (5, 5))
-    var = cv2.blur(l2i * l2i, (5, 5)) - m * m
-    out["rough2"] = _to_level(cv2.sqrt(np.maximum(var, 0)), full)
+    if "hs" in want:
+        hsv_s = cv2.GaussianBlur(hsv, (0, 0), 1.0)
+        hbin = (hsv_s[:, :, 0].astype(np.int32) * N_HUE) >> 8
+        sbin = (hsv_s[:, :, 1].astype(np.int32) * N_SAT) >> 8
+        out["hs"] = (hbin * N_SAT + sbin).astype(np.float32)
+    if want & {"val", "val_mean", "val_std"}:
+        bb, gg, rr = cv2.split(bgr)
+        v = cv2.max(cv2.max(bb, gg), rr).astype(np.float32) * np.float32(1 / 255)  # HSV value
+        if "val" in want:
+            out["val"] = cv2.GaussianBlur(v, (0, 0), 1.0)
+        if want & {"val_mean", "val_std"}:
+            vm = cv2.blur(v, (REGION, REGION))
+            out["val_mean"] = vm
+            if "val_std" in want:
+                out["val_std"] = cv2.sqrt(np.maximum(cv2.blur(v * v, (REGION, REGION)) - vm * vm, 0))
+    if want & {"rchrom", "rchrom_mean"}:
+        rchrom = cv2.GaussianBlur(r / (r + g + b + np.float32(0.03)), (0, 0), 1.0)
+        out["rchrom"] = rchrom
+        if "rchrom_mean" in want:
+            out["rchrom_mean"] = cv2.blur(rchrom, (REGION, REGION))
+    if want & {"lab_a", "lab_b", "lab_a_mean", "lab_b_mean"}:
+        lab = cv2.cvtColor(cv2.GaussianBlur(bgr, (0, 0), 1.0), cv2.COLOR_BGR2LAB)
+        for k, name in ((1, "lab_a"), (2, "lab_b")):
+            ch = lab[:, :, k].astype(np.float32)
+            out[name] = ch
+            if name + "_mean" in want:
+                out[name + "_mean"] = cv2.blur(ch, (REGION, REGION))
+    if "sat_mean" in want:
+        out["sat_mean"] = cv2.blur(sat, (REGION, REGION))
+    if want & {"rough", "rough_mean"}:
+        hp = np.abs(grey - cv2.GaussianBlur(grey, (0, 0), 1.0))
+        out["rough"] = cv2.blur(hp, (9, 9))
+        if "rough_mean" in want:
+            out["rough_mean"] = cv2.blur(out["rough"], (REGION, REGION))
+    if "rough2" in want:
+        l2i = rel(2)
+        m = cv2.blur(l2i, (5, 5))
+        var = cv2.blur(l2i * l2i, (5, 5)) - m * m
+        out["rough2"] = _to_level(cv2.sqrt(np.maximum(var, 0)), base)
 
     # ---- cracks: thin, dark, elongated ----
     for name, s in (("ridge1", 1.0), ("ridge2", 2.0)):
-        out[name] = _hessian_eigs(grey, s)[0]
-    out["ridge3"] = _to_level(_hessian_eigs(pyr_i[1], 1.5)[0], full)
-    mu = cv2.blur(grey, (15, 15))
-    sd = cv2.sqrt(np.maximum(cv2.blur(grey * grey, (15, 15)) - mu * mu, 0))
-    out["dark"] = (mu - grey) / (sd + np.float32(0.02))
-    out["line"] = _dark_line(grey)
-    out["line2"] = _to_level(_dark_line(pyr_i[1]), full)
-    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
-    jxx = cv2.GaussianBlur(gx * gx, (0, 0), 2.0)
-    jyy = cv2.GaussianBlur(gy * gy, (0, 0), 2.0)
-    jxy = cv2.GaussianBlur(gx * gy, (0, 0), 2.0)
-    root = cv2.sqrt((jxx - jyy) ** 2 + 4 * jxy * jxy)
-    out["coh"] = root / (jxx + jyy + np.float32(1e-4))
+        if name in want:
+            out[name] = _hessian_eigs(grey, s, hess(level) if s == 1.0 else None)[0]
+    if "ridge3" in want:
+        out["ridge3"] = _to_level(_hessian_eigs(rel(1), 1.5)[0], base)
+    if "dark" in want:
+        mu = cv2.blur(grey, (15, 15))
+        sd = cv2.sqrt(np.maximum(cv2.blur(grey * grey, (15, 15)) - mu * mu, 0))
+        out["dark"] = (mu - grey) / (sd + np.float32(0.02))
+    if "line" in want:
+        out["line"] = _dark_line(grey)
+    if "line2" in want:
+        out["line2"] = _to_level(_dark_line(rel(1)), base)
+    if "coh" in want:
+        gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+        jxx = cv2.GaussianBlur(cv2.multiply(gx, gx), (0, 0), 2.0)
+        jyy = cv2.GaussianBlur(cv2.multiply(gy, gy), (0, 0), 2.0)
+        jxy2 = cv2.GaussianBlur(cv2.multiply(gx, gy, scale=2.0), (0, 0), 2.0)
+        root = cv2.magnitude(cv2.subtract(jxx, jyy), jxy2)  # sqrt((jxx - jyy)^2 + 4 jxy^2)
+        out["coh"] = cv2.divide(root, cv2.add(cv2.add(jxx, jyy), 1e-4))
 
-    data = np.empty((len(FEATURE_NAMES), h, w), np.float32)
-    for k, name in enumerate(FEATURE_NAMES):
-        data[k] = out.pop(name)[:h, :w]  # pop: the padded maps are freed as the stack fills
-    return FeatureStack(FEATURE_NAMES, data)
+    bh, bw = -(-h // 2**level), -(-w // 2**level)
+    return FeatureStack(names, tuple(out[n][:bh, :bw] for n in names), level)

@@ -26,13 +26,26 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._features import N_HUE, N_SAT, FeatureStack, _LINES
+from ._features import COLOUR_FEATURES, N_HUE, N_SAT, FeatureStack, _LINES
 
 FORMAT = "inspect_pipe.defect_model/1"
 N_BINS = 48
+PAIR_BINS = 16  # per axis of a joint (two-feature) table: 256 bins, one uint8 index
 CONTEXT_NAMES = ("z", "z_mean", "z_box15", "z_box31", "z_box63", "z_line", "z_line2")
-#: context features reach this far (px) beyond the first stage's support
-CONTEXT_SUPPORT_PX = 32  # half of the largest box (63 px); lines reach 22 px
+#: every context map a stage may use (CONTEXT_NAMES is the default set)
+ALL_CONTEXT_NAMES = CONTEXT_NAMES + ("z_box127", "zc", "zc_box15", "zc_box31", "zc_box63")
+
+
+def context_reach_px(names) -> int:
+    """How far (px at the class's level) the context maps ``names`` read beyond a pixel."""
+    reach = {"z_mean": 3, "z_line": 5, "z_line2": 12}
+    r = 0
+    for n in names:
+        if "_box" in n:
+            r = max(r, int(n.rsplit("_box", 1)[1]) // 2)
+        else:
+            r = max(r, reach.get(n, 0))
+    return r
 
 
 @dataclass(frozen=True)
@@ -44,6 +57,11 @@ class FeatureTable:
     hi: float
     llr: np.ndarray  # (n_bins,) float32
     categorical: bool = False
+    #: a joint table of two features (semi-naive Bayes): p(f_a, f_b | class) on PAIR_BINS x
+    #: PAIR_BINS bins, f_a on [lo, hi], f_b on [lo2, hi2]; ``name`` is "a*b"
+    pair: tuple[str, str] | None = None
+    lo2: float = 0.0
+    hi2: float = 1.0
 
     def bins(self, x: np.ndarray) -> np.ndarray:
         """Bin index per pixel, uint8; values past the last bin give 255 (see :meth:`lut`)."""
@@ -54,13 +72,30 @@ class FeatureTable:
         # floor((x - lo) * scale) for x >= lo, saturated at 255: one pass, no temporaries
         return cv2.convertScaleAbs(cv2.max(x, float(self.lo)), alpha=scale, beta=-self.lo * scale - 0.5 + 1e-4)
 
+    def pair_bins(self, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+        """Joint bin index (uint8) of a pair table: bin_a * PAIR_BINS + bin_b."""
+        out = None
+        for x, lo, hi, mul in ((xa, self.lo, self.hi, PAIR_BINS), (xb, self.lo2, self.hi2, 1)):
+            x = np.ascontiguousarray(x, np.float32)
+            scale = PAIR_BINS / max(hi - lo, 1e-9)
+            b = cv2.min(cv2.convertScaleAbs(cv2.max(x, float(lo)), alpha=scale, beta=-lo * scale - 0.5 + 1e-4), PAIR_BINS - 1)
+            out = b * np.uint8(mul) if out is None else cv2.add(out, b)
+        return out
+
+    def bins_in(self, feats) -> np.ndarray:
+        """Bin index per pixel of this table's feature(s) in ``feats`` (name -> map)."""
+        if self.pair:
+            return self.pair_bins(feats[self.pair[0]], feats[self.pair[1]])
+        return self.bins(feats[self.name])
+
     def lut(self, weight: float = 1.0) -> np.ndarray:
         lut = np.full(256, self.llr[-1], np.float32)
         lut[: self.llr.shape[0]] = self.llr
         return lut * np.float32(weight)
 
-    def lookup(self, x: np.ndarray, weight: float = 1.0) -> np.ndarray:
-        return cv2.LUT(self.bins(x), self.lut(weight))
+    def lookup(self, feats, weight: float = 1.0) -> np.ndarray:
+        """Weighted LLR per pixel; ``feats``: mapping name -> (H, W) float32."""
+        return cv2.LUT(self.bins_in(feats), self.lut(weight))
 
 
 @dataclass(frozen=True)
@@ -76,13 +111,30 @@ class Stage:
     def names(self) -> tuple[str, ...]:
         return tuple(t.name for t in self.tables)
 
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """The maps the tables read (a pair table reads its two features)."""
+        out: list[str] = []
+        for t in self.tables:
+            out += [n for n in (t.pair or (t.name,)) if n not in out]
+        return tuple(out)
+
     def logit(self, feats, *, naive: bool = False) -> np.ndarray:
         """``feats``: mapping name -> (H, W) float32. ``naive``: unweighted tables + prior."""
         acc = None
         for t, w in zip(self.tables, self.weights):
-            term = t.lookup(feats[t.name], 1.0 if naive else float(w))
+            term = t.lookup(feats, 1.0 if naive else float(w))
             acc = term if acc is None else cv2.add(acc, term)
         return acc + np.float32(self.log_prior_odds if naive else self.bias)
+
+    def colour_logit(self, feats, *, naive: bool = False) -> np.ndarray:
+        """The colour tables' part of the weighted sum (no bias): the colour evidence alone."""
+        acc = None
+        for t, w in zip(self.tables, self.weights):
+            if t.name in COLOUR_FEATURES:
+                term = t.lookup(feats, 1.0 if naive else float(w))
+                acc = term if acc is None else cv2.add(acc, term)
+        return acc
 
 
 @dataclass(frozen=True)
@@ -97,6 +149,12 @@ class ClassModel:
     min_area_px: int  # connected components smaller than this are speckle
     needs_colour: bool
     train_score: dict = field(default_factory=dict)
+    level: int = 0  # pyramid level of the class's feature maps (1: half resolution, upsampled)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """The features the first stage reads."""
+        return self.stages[0].inputs if self.stages else ()
 
 
 @dataclass(frozen=True)
@@ -119,33 +177,63 @@ def _best_line(z: np.ndarray) -> np.ndarray:
     return best
 
 
-def context_features(z: np.ndarray) -> dict[str, np.ndarray]:
-    """Context maps of a logit map ``z`` (H, W) float32: itself, its local means over 7 to 63 px
-    boxes (region support), and its best mean along 11 px and 22 px lines (connected, elongated
-    support: the role of percolation in crack detection)."""
+def context_features(z: np.ndarray, names=CONTEXT_NAMES, zc: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Context maps ``names`` of a logit map ``z`` (H, W) float32: itself, its local means over
+    7 to 127 px boxes (region support), and its best mean along 11 px and 22 px lines (connected,
+    elongated support: the role of percolation in crack detection); ``zc*``: the same boxes over
+    ``zc``, the first stage's colour evidence alone (region colour, the cascade's colour model)."""
     h, w = z.shape
-    zc = np.clip(z, -12, 12).astype(np.float32)
-    out = {"z": zc, "z_mean": cv2.blur(zc, (7, 7))}
-    for n in (15, 31, 63):
-        out[f"z_box{n}"] = cv2.blur(zc, (n, n), borderType=cv2.BORDER_REFLECT_101)
-    out["z_line"] = _best_line(zc)
-    # half resolution on an even-sized copy, so a tile and the whole image sample the same grid
-    ze = cv2.copyMakeBorder(zc, 0, h % 2, 0, w % 2, cv2.BORDER_REFLECT_101)
-    half = cv2.resize(ze, (ze.shape[1] // 2, ze.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    up = cv2.resize(_best_line(half), (ze.shape[1], ze.shape[0]), interpolation=cv2.INTER_LINEAR)
-    out["z_line2"] = up[:h, :w]
+    zc_ = None if zc is None else np.clip(zc, -12, 12).astype(np.float32)
+    zz = np.clip(z, -12, 12).astype(np.float32)
+    out = {"z": zz}
+    if "zc" in names:
+        out["zc"] = zc_
+    if "z_mean" in names:
+        out["z_mean"] = cv2.blur(zz, (7, 7))
+    for n in (15, 31, 63, 127):
+        for pre, m in (("z", zz), ("zc", zc_)):
+            if f"{pre}_box{n}" in names:
+                out[f"{pre}_box{n}"] = cv2.blur(m, (n, n), borderType=cv2.BORDER_REFLECT_101)
+    if "z_line" in names:
+        out["z_line"] = _best_line(zz)
+    if "z_line2" in names:
+        # half resolution on an even-sized copy, so a tile and the whole image sample the same grid
+        ze = cv2.copyMakeBorder(zz, 0, h % 2, 0, w % 2, cv2.BORDER_REFLECT_101)
+        half = cv2.resize(ze, (ze.shape[1] // 2, ze.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        up = cv2.resize(_best_line(half), (ze.shape[1], ze.shape[0]), interpolation=cv2.INTER_LINEAR)
+        out["z_line2"] = up[:h, :w]
     return out
 
 
+def context_maps(stage1: Stage, feats, z: np.ndarray, names, *, naive: bool = False) -> dict[str, np.ndarray]:
+    """What a context stage with tables ``names`` reads: first-stage features and context maps."""
+    zc = stage1.colour_logit(feats, naive=naive) if any(n.startswith("zc") for n in names) else None
+    return {**feats, **context_features(z, names, zc)}
+
+
 def class_logit(fs: FeatureStack, cm: ClassModel, *, naive: bool = False) -> np.ndarray:
-    """Final logit map (H, W) float32 of class ``cm`` (stages chained, then smoothed)."""
-    feats = {n: fs.data[i] for i, n in enumerate(fs.names)}
+    """Final logit map of class ``cm`` (stages chained, then smoothed) at the resolution of ``fs``
+    (which must be computed at ``cm.level``); :func:`to_full_res` brings it to the image's."""
+    if fs.level != cm.level:
+        raise ValueError(f"class {cm.name} needs features at level {cm.level}, got level {fs.level}")
+    feats = fs.as_dict()
     z = cm.stages[0].logit(feats, naive=naive)
     for st in cm.stages[1:]:
-        z = st.logit(context_features(z), naive=naive)
+        # a context stage's tables: context maps of z, and optionally first-stage features again
+        z = st.logit(context_maps(cm.stages[0], feats, z, st.inputs, naive=naive), naive=naive)
     if cm.smooth_sigma_px > 0:
         z = cv2.GaussianBlur(z, (0, 0), cm.smooth_sigma_px)
     return z
+
+
+def to_full_res(m: np.ndarray, shape_hw: tuple[int, int], level: int) -> np.ndarray:
+    """A map computed at pyramid ``level`` (ceil(H / 2^level) x ceil(W / 2^level)) brought to the
+    image's (H, W) by bilinear interpolation (the pyramid's pixel-centre geometry)."""
+    if level == 0:
+        return m
+    f = 2**level
+    up = cv2.resize(m, (m.shape[1] * f, m.shape[0] * f), interpolation=cv2.INTER_LINEAR)
+    return up[: shape_hw[0], : shape_hw[1]]
 
 
 def sigmoid(z: np.ndarray) -> np.ndarray:
@@ -166,7 +254,10 @@ def save_model(model: DefectModel, path: Path) -> None:
             feats = []
             for t in st.tables:
                 arrays[f"{cname}/{k}/{t.name}"] = t.llr.astype(np.float32)
-                feats.append({"name": t.name, "lo": t.lo, "hi": t.hi, "categorical": t.categorical})
+                f = {"name": t.name, "lo": t.lo, "hi": t.hi, "categorical": t.categorical}
+                if t.pair:
+                    f.update(pair=list(t.pair), lo2=t.lo2, hi2=t.hi2)
+                feats.append(f)
             stages.append(
                 {
                     "features": feats,
@@ -183,6 +274,7 @@ def save_model(model: DefectModel, path: Path) -> None:
             "min_area_px": cm.min_area_px,
             "needs_colour": cm.needs_colour,
             "train_score": cm.train_score,
+            "level": cm.level,
         }
     header = dict(model.meta)
     header["format"] = FORMAT
@@ -213,7 +305,8 @@ def load_model(path: Path) -> DefectModel:
         stages = []
         for k, s in enumerate(c["stages"]):
             tables = tuple(
-                FeatureTable(f["name"], float(f["lo"]), float(f["hi"]), arrays[f"{cname}/{k}/{f['name']}"], bool(f["categorical"]))
+                FeatureTable(f["name"], float(f["lo"]), float(f["hi"]), arrays[f"{cname}/{k}/{f['name']}"], bool(f["categorical"]),
+                             tuple(f["pair"]) if f.get("pair") else None, float(f.get("lo2", 0.0)), float(f.get("hi2", 1.0)))
                 for f in s["features"]
             )
             stages.append(Stage(tables, np.asarray(s["weights"], np.float32), float(s["bias"]), float(s["log_prior_odds"])))
@@ -226,6 +319,7 @@ def load_model(path: Path) -> DefectModel:
             min_area_px=int(c["min_area_px"]),
             needs_colour=bool(c["needs_colour"]),
             train_score=dict(c.get("train_score", {})),
+            level=int(c.get("level", 0)),
         )
     meta = {k: v for k, v in header.items() if k not in ("classes", "feature_geometry")}
     return DefectModel(classes, meta)

@@ -17,10 +17,10 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from ._detect import decide
+from ._detect import class_logits, decide
 from ._features import FEATURE_NAMES, N_HUE, N_SAT, compute_features
 from ._metrics import best_f, tolerance_counts
-from ._model import CONTEXT_NAMES, N_BINS, ClassModel, FeatureTable, Stage, class_logit, context_features, sigmoid
+from ._model import ALL_CONTEXT_NAMES, CONTEXT_NAMES, N_BINS, PAIR_BINS, ClassModel, FeatureTable, Stage, context_maps, sigmoid
 
 Loader = Callable[[], tuple[np.ndarray, np.ndarray]]
 
@@ -42,33 +42,53 @@ class ClassTrainConfig:
     pos_per_image: int = 2000
     neg_per_image: int = 2000
     context: int = 0  # number of auto-context stages after the first
+    context_raw: tuple[str, ...] = ()  # first-stage features that the context stages use again
+    context_names: tuple[str, ...] = CONTEXT_NAMES  # context maps of the stage-1 logit they use
+    pairs: tuple[tuple[str, str], ...] = ()  # feature pairs with a joint table in the first stage
     smooth_sigma_px: float = 0.0
     min_area_px: int = 20
     hysteresis_ratios: tuple[float, ...] = (1.0,)
     l2: float = 1e-3
     seed: int = 0
-    max_features: int = 0  # 0: keep all; else greedy forward selection on the sample log-loss
+    level: int = 0  # pyramid level of the features (1: half resolution, the map upsampled)
 
     def __post_init__(self) -> None:
-        unknown = set(self.features) - set(FEATURE_NAMES)
+        unknown = (set(self.features) - set(FEATURE_NAMES) | set(self.context_raw) - set(self.features)
+                   | set(self.context_names) - set(ALL_CONTEXT_NAMES)
+                   | {n for p in self.pairs for n in p} - set(self.features))
         if unknown:
             raise ValueError(f"unknown features {sorted(unknown)}")
+
+
+#: Crack features: the grey features whose tables earned a weight (ridge strengths, the darkness
+#: z-score, unsigned contrast and fine roughness scored ~0 next to the line detectors; the
+#: full-resolution 11 px line detector added nothing to the 22 px one on validation images).
+CRACK_FEATURES = ("int_cs", "ori_cs", "sym", "val", "rough2", "line2", "coh")
+#: Crack context maps: the 11 px line support of the logit likewise dropped for the 22 px one.
+CRACK_CONTEXT = ("z", "z_mean", "z_box15", "z_box31", "z_box63", "z_line2")
+
+
+def brightness_pairs(features) -> tuple[tuple[str, str], ...]:
+    """Every feature paired with the brightness ``val``: joint tables p(f, val | class), i.e. each
+    feature's likelihood conditioned on the grey level (semi-naive Bayes)."""
+    return tuple((f, "val") for f in features if f != "val")
 
 
 #: The configurations of the shipped model (one per class).
 DEFAULT_CONFIGS = {
     "crack": ClassTrainConfig(
-        cls="crack", features=GREY_FEATURES, needs_colour=False, tol_px=2.0, ignore_band_px=2,
-        pos_per_image=3000, neg_per_image=6000, context=1, min_area_px=20,
+        cls="crack", features=CRACK_FEATURES, needs_colour=False, tol_px=2.0, ignore_band_px=2,
+        pos_per_image=3000, neg_per_image=6000, context=1, context_names=CRACK_CONTEXT, min_area_px=20,
         hysteresis_ratios=(1.0, 0.8, 0.6, 0.45),
     ),
     "corrosion": ClassTrainConfig(
-        cls="corrosion", features=FEATURE_NAMES, needs_colour=True, tol_px=0.0, ignore_band_px=3,
-        pos_per_image=1500, neg_per_image=1500, context=2, smooth_sigma_px=2.0, min_area_px=64,
+        cls="corrosion", features=FEATURE_NAMES, needs_colour=True, tol_px=0.0, ignore_band_px=2,
+        pos_per_image=1500, neg_per_image=1500, context=2, smooth_sigma_px=0.5, min_area_px=64, level=1,
     ),
     "surface": ClassTrainConfig(
         cls="surface", features=GREY_FEATURES, needs_colour=False, tol_px=0.0, ignore_band_px=1,
-        pos_per_image=600, neg_per_image=600, context=1, smooth_sigma_px=1.5, min_area_px=20,
+        pos_per_image=4000, neg_per_image=4000, context=1, smooth_sigma_px=1.5, min_area_px=20,
+        pairs=brightness_pairs(GREY_FEATURES),
     ),
 }
 
@@ -93,6 +113,17 @@ def _sample_masks(gt: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
         if core.sum() > 0.3 * pos.sum():
             pos = core
     return pos, ~near
+
+
+def _gt_at(gt: np.ndarray, level: int, shape_hw: tuple[int, int]) -> np.ndarray:
+    """The label mask at pyramid ``level``: a pixel is defect when at least half its area is."""
+    if level == 0:
+        return gt
+    g = gt.astype(np.float32)
+    f = 2**level
+    h, w = shape_hw
+    g = cv2.copyMakeBorder(g, 0, h * f - g.shape[0], 0, w * f - g.shape[1], cv2.BORDER_REFLECT_101)
+    return cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA) >= 0.5
 
 
 def _draw(rng: np.random.Generator, flat_idx: np.ndarray, n: int) -> np.ndarray:
@@ -141,11 +172,28 @@ def _tables(names, pos: np.ndarray, neg: np.ndarray) -> list[FeatureTable]:
     return tables
 
 
-def _llr_matrix(tables, x: np.ndarray) -> np.ndarray:
-    cols = []
-    for j, t in enumerate(tables):
-        b = t.bins(x[:, j:j + 1].astype(np.float32)).ravel().astype(int)
-        cols.append(t.lut()[b])
+def _pair_tables(names, pairs, singles, pos: np.ndarray, neg: np.ndarray) -> list[FeatureTable]:
+    """Joint class-conditional tables of feature pairs, on the ranges of their single tables."""
+    rng = {t.name: (t.lo, t.hi) for t in singles}
+    tables = []
+    for a, b in pairs:
+        probe = FeatureTable(f"{a}*{b}", *rng[a], np.zeros(PAIR_BINS**2, np.float32), True, (a, b), *rng[b])
+        ia, ib = names.index(a), names.index(b)
+        nb = PAIR_BINS**2
+        hs = []
+        for x in (pos, neg):
+            bi = probe.pair_bins(x[:, ia:ia + 1], x[:, ib:ib + 1]).ravel().astype(int)
+            h = np.bincount(bi, minlength=nb).astype(np.float64).reshape(PAIR_BINS, PAIR_BINS)
+            h = cv2.GaussianBlur(h, (3, 3), 0.7, borderType=cv2.BORDER_REPLICATE) + 1.0  # light 2-D smoothing
+            hs.append(h.ravel())
+        llr = np.log(hs[0] / hs[0].sum()) - np.log(hs[1] / hs[1].sum())
+        tables.append(FeatureTable(probe.name, probe.lo, probe.hi, llr.astype(np.float32), True, (a, b), probe.lo2, probe.hi2))
+    return tables
+
+
+def _llr_matrix(tables, x: np.ndarray, names) -> np.ndarray:
+    feats = {n: x[:, j:j + 1].astype(np.float32) for j, n in enumerate(names)}
+    cols = [t.lut()[t.bins_in(feats).ravel().astype(int)] for t in tables]
     return np.stack(cols, axis=1).astype(np.float64)
 
 
@@ -169,11 +217,12 @@ def _logistic(X: np.ndarray, y: np.ndarray, w: np.ndarray, l2: float) -> tuple[n
     return beta[:d].astype(np.float32), float(beta[d])
 
 
-def _fit_stage(names, acc: _Samples, l2: float) -> Stage:
+def _fit_stage(names, acc: _Samples, l2: float, pairs=()) -> Stage:
     pos = np.concatenate(acc.pos)
     neg = np.concatenate(acc.neg)
     tables = _tables(names, pos, neg)
-    X = _llr_matrix(tables, np.concatenate([pos, neg]))
+    tables += _pair_tables(list(names), pairs, tables, pos, neg)
+    X = _llr_matrix(tables, np.concatenate([pos, neg]), names)
     y = np.concatenate([np.ones(len(pos)), np.zeros(len(neg))])
     # sample weights restore the true class frequencies of the (non-ignored) training pixels
     wp = acc.n_pos_total / max(len(pos), 1)
@@ -188,10 +237,11 @@ def _fit_stage(names, acc: _Samples, l2: float) -> Stage:
 def _operating_point(cfg: ClassTrainConfig, stages, items: Sequence[Loader]) -> tuple[float, float, dict]:
     probs, gts = [], []
     total = None
-    cm0 = ClassModel(cfg.cls, tuple(stages), 0.5, 0.5, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour)
+    cm0 = ClassModel(cfg.cls, tuple(stages), 0.5, 0.5, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour,
+                     level=cfg.level)
     for load in items:
         img, gt = load()
-        p = np.clip(np.rint(sigmoid(class_logit(compute_features(img), cm0)) * 255), 0, 255).astype(np.uint8)
+        p = np.clip(np.rint(sigmoid(class_logits(img, [cm0])[cfg.cls]) * 255), 0, 255).astype(np.uint8)
         probs.append(p)
         gts.append(gt)
         c = tolerance_counts(p, gt, cfg.tol_px)
@@ -224,29 +274,32 @@ def train_class(items: Sequence[Loader], cfg: ClassTrainConfig, *, log=print) ->
     names = list(cfg.features)
     for load in items:
         img, gt = load()
-        fs = compute_features(img)
-        pos_m, neg_m = _sample_masks(gt, cfg.ignore_band_px)
+        fs = compute_features(img, names, level=cfg.level)
+        pos_m, neg_m = _sample_masks(_gt_at(gt, cfg.level, fs.shape), cfg.ignore_band_px)
         _collect({n: fs[n] for n in names}, names, pos_m, neg_m, cfg, rng, acc)
-    stage1 = _fit_stage(names, acc, cfg.l2)
+    stage1 = _fit_stage(names, acc, cfg.l2, cfg.pairs)
     log(f"  {cfg.cls}: stage 1 on {sum(len(a) for a in acc.pos)} + {sum(len(a) for a in acc.neg)} px; "
-        f"weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(names, stage1.weights)))
+        f"weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(stage1.names, stage1.weights)))
     stages = [stage1]
+    cnames = list(cfg.context_names) + list(cfg.context_raw)
     for k in range(cfg.context):
         acc2 = _Samples()
         for load in items:
             img, gt = load()
-            fs = compute_features(img)
-            z = stages[0].logit({n: fs[n] for n in names})
+            fs = compute_features(img, names, level=cfg.level)
+            feats = {n: fs[n] for n in names}
+            z = stages[0].logit(feats)
             for st in stages[1:]:
-                z = st.logit(context_features(z))
-            pos_m, neg_m = _sample_masks(gt, cfg.ignore_band_px)
-            _collect(context_features(z), CONTEXT_NAMES, pos_m, neg_m, cfg, rng, acc2)
-        st = _fit_stage(list(CONTEXT_NAMES), acc2, cfg.l2)
-        log(f"  {cfg.cls}: context {k + 1} weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(CONTEXT_NAMES, st.weights)))
+                z = st.logit(context_maps(stages[0], feats, z, st.inputs))
+            pos_m, neg_m = _sample_masks(_gt_at(gt, cfg.level, fs.shape), cfg.ignore_band_px)
+            _collect(context_maps(stages[0], feats, z, cnames), cnames, pos_m, neg_m, cfg, rng, acc2)
+        st = _fit_stage(cnames, acc2, cfg.l2)
+        log(f"  {cfg.cls}: context {k + 1} weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(cnames, st.weights)))
         stages.append(st)
     thr, low, score = _operating_point(cfg, stages, items)
     log(f"  {cfg.cls}: operating point P >= {thr:.3f} (hysteresis {low:.3f}); train {score}")
-    return ClassModel(cfg.cls, tuple(stages), thr, low, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour, score)
+    return ClassModel(cfg.cls, tuple(stages), thr, low, cfg.smooth_sigma_px, cfg.min_area_px, cfg.needs_colour, score,
+                      level=cfg.level)
 
 
 def train_model(sources: dict, *, version: str, configs: dict | None = None, log=print) -> "DefectModel":
