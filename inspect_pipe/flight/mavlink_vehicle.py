@@ -94,6 +94,7 @@ class MavlinkLink:
         self.custom_mode = 0
         self.landed_state = mc.LandedState.UNDEFINED
         self.attitude = (0.0, 0.0, 0.0)  # NED roll, pitch, yaw
+        self.have_attitude = False  # an ATTITUDE message has arrived (the heading is known)
         self.local_position: tuple[float, ...] | None = None  # x y z vx vy vz (NED)
         self.battery_percent: float | None = None
         self._ranges: dict[mc.DistanceSlot, RangeReading] = {}
@@ -171,13 +172,16 @@ class MavlinkLink:
         elif kind == "ATTITUDE":
             if all(math.isfinite(v) for v in (m.roll, m.pitch, m.yaw)):
                 self.attitude = (m.roll, m.pitch, m.yaw)
+                self.have_attitude = True
         elif kind == "HIGHRES_IMU" or kind == "SCALED_IMU":
             scale = 1.0 if kind == "HIGHRES_IMU" else 9.81e-3  # SCALED_IMU is in milli-g
             f = (m.xacc * scale, m.yacc * scale, m.zacc * scale)
             if all(math.isfinite(v) for v in f):
                 ax, ay, az = mc.heading_accel_from_imu(f, *self.attitude)
                 with self._lock:
-                    self._imu = ImuReading(now, ax, ay, az)
+                    # World yaw (x forward, y left) is the NED yaw negated (see mavlink_codec).
+                    yaw = -float(self.attitude[2]) if self.have_attitude else None
+                    self._imu = ImuReading(now, ax, ay, az, yaw)
         elif kind == "LOCAL_POSITION_NED":
             self.local_position = (m.x, m.y, m.z, m.vx, m.vy, m.vz)
         elif kind == "BATTERY_STATUS":

@@ -59,6 +59,7 @@ class FlowSpec:
 class ImuSpec:
     noise_m_s2: float = 0.05
     bias_m_s2: float = 0.03  # std of the residual accelerometer bias after calibration
+    yaw_drift_rad_s: float = 0.002  # std of the heading estimate's drift rate (0.1 deg/s)
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,9 @@ class SensorSuite:
         self._imu_prev = None
         self._next_due = 0.0
         self._imu_bias = tuple(r.gauss(0, self.s.imu.bias_m_s2) for _ in range(3))
+        # Heading drift of a gyro-only attitude estimate (no usable compass in a steel hold); its
+        # own generator, so the other noise sequences stay as they were.
+        self._yaw_drift_rad_s = random.Random(seed * 7919 + 29).gauss(0.0, self.s.imu.yaw_drift_rad_s)
         self.bias = {k: (r.gauss(0, fl.bias_m_s), r.gauss(0, fl.bias_m_s)) for k in ("bottom_flow", "front_flow")}
         # Last sonar range each PX4Flow scales its flow with.
         self._px_range: dict[str, float | None] = {"bottom_flow": None, "front_flow": None}
@@ -181,6 +185,7 @@ class SensorSuite:
             c * ax + sn * ay + b[0] + g(0.0, im.noise_m_s2),
             -sn * ax + c * ay + b[1] + g(0.0, im.noise_m_s2),
             az + b[2] + g(0.0, im.noise_m_s2),
+            yaw + self._yaw_drift_rad_s * now,  # the autopilot's gyro-integrated heading
         )
 
     def _range(self, spec: RangeSpec, true_m: float | None) -> float | None:

@@ -19,6 +19,7 @@ from inspect_pipe.flight_stack.messages import (
     RangeReading,
     StateEstimate,
 )
+from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory
 from inspect_pipe.flight_stack.params import EstimationParams
 
 __all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "RangeSlope", "SensorStatus", "select_mode"]
@@ -198,6 +199,11 @@ class MAVStateUpdater:
         self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
         self._dr_v = (0.0, 0.0)  # horizontal speed carried through the alarm modes (IMU)
         self._dr_vz = 0.0  # vertical speed carried through the alarm modes (IMU)
+        self.memory = ObstacleMemory(
+            keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg
+        )
+        self._yaw: float | None = None  # last heading the autopilot reported
+        self._memory_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
@@ -249,6 +255,10 @@ class MAVStateUpdater:
             k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
             vx, vy = (self._dr_v[0] + ax * dt) * k, (self._dr_v[1] + ay * dt) * k
         self._dr_v = (vx, vy)
+        if imu is not None and imu.yaw_rad is not None:
+            self._yaw = imu.yaw_rad
+        if self._yaw is not None and p.memory_keep_s > 0.0:
+            self.memory.advance(now, vx, vy, self._yaw)
 
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
         # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.
@@ -316,10 +326,20 @@ class MAVStateUpdater:
             closing[name] = None if rate is None else -rate
 
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
+        left, right = at_now(m.left_sonar, est.vy_m_s), at_now(m.right_sonar, -est.vy_m_s)
+        if self._yaw is not None and p.memory_keep_s > 0.0:
+            front, left, right = (
+                self._remembered(now, name, axis, r, d)
+                for name, axis, r, d in (
+                    ("front", 0.0, m.front_sonar, front),
+                    ("left", _HALF_PI, m.left_sonar, left),
+                    ("right", -_HALF_PI, m.right_sonar, right),
+                )
+            )
         return Clearance(
-            front_m=front if front is not None else None,
-            left_m=at_now(m.left_sonar, est.vy_m_s),
-            right_m=at_now(m.right_sonar, -est.vy_m_s),
+            front_m=front,
+            left_m=left,
+            right_m=right,
             down_m=est.height_m if est.mode != EstimationMode.ALARM_NONE else None,
             front_stale=stale(m.front_sonar),
             left_stale=stale(m.left_sonar),
@@ -328,3 +348,18 @@ class MAVStateUpdater:
             left_closing_m_s=closing["left"],
             right_closing_m_s=closing["right"],
         )
+
+    def _remembered(self, now: float, name: str, axis_rad: float, r: RangeReading | None, d: float | None) -> float | None:
+        """The sector's clearance ``d`` (from its sonar, brought to now), after storing a fresh
+        echo in the obstacle memory, lowered to the nearest remembered surface facing it."""
+        yaw = self._yaw
+        if d is not None and r is not None and r.stamp_s != self._memory_stamps[name]:
+            self._memory_stamps[name] = r.stamp_s
+            self.memory.add(r.stamp_s, axis_rad, d, yaw)  # type: ignore[arg-type]
+        mem = self.memory.clearance(now, axis_rad, yaw)  # type: ignore[arg-type]
+        if mem is None:
+            return d
+        return mem if d is None else min(d, mem)
+
+
+_HALF_PI = 1.5707963267948966

@@ -93,6 +93,10 @@ class ImuReading:
     ax_m_s2: float
     ay_m_s2: float
     az_m_s2: float
+    # Heading from the autopilot's attitude estimate (world frame, x forward, y left, rad); None
+    # when the link does not carry it. Gyro-integrated in a steel hold: only changes over a few
+    # seconds are used (the obstacle memory).
+    yaw_rad: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,6 +42,9 @@ class EstimationParams:
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
+    memory_keep_s: float = param(8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long (0: no memory)")
+    memory_keep_travel_m: float = param(2.0, 0.1, 20.0, "m", "obstacle memory: or after this much travel (odometry drift)")
+    memory_max_angle_deg: float = param(60.0, 0.0, 89.0, "deg", "obstacle memory: surfaces facing an axis within this angle count for it")
     # Range observers: triple pole at -1.5 rad/s (k1 = 3L, k2 = 3L^2, k3 = L^3).
     observer_k1_1_s: float = param(4.5, 0.1, 50.0, "1/s", "range observer position gain")
     observer_k2_1_s2: float = param(6.75, 0.01, 500.0, "1/s^2", "range observer rate gain")

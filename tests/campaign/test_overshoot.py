@@ -15,7 +15,11 @@ from inspect_pipe.campaign.run import fly_episode
 REGRESSIONS = Path(__file__).resolve().parents[2] / "scenarios" / "regressions"
 
 # (campaign seed, episode, regression file, overshoot before the fix, bound now)
-CASES = [(1, 16, "campaign_oblique_wall_e16.yaml", 0.291, 0.2)]
+CASES = [
+    (1, 16, "campaign_oblique_wall_e16.yaml", 0.291, 0.10),
+    (1, 916, "campaign_s1_e00916_push_yaw.yaml", 0.209, 0.10),
+    (1, 1804, "campaign_s1_e01804_push_yaw.yaml", 0.188, 0.10),
+]
 
 
 @pytest.mark.parametrize("seed,index,fname,before,bound", CASES, ids=[c[2] for c in CASES])
@@ -27,8 +31,8 @@ def test_regression_file_is_the_campaign_episode(seed, index, fname, before, bou
 
 @pytest.mark.parametrize("seed,index,fname,before,bound", CASES, ids=[c[2] for c in CASES])
 def test_push_while_yawing_overshoots_less(seed, index, fname, before, bound):
-    # GIVEN a forward push held while yawing, the front wall seen ever more obliquely by the left
-    # sonar WHEN ours flies it THEN the closing of that sonar's range stops the forward motion
+    # GIVEN a forward push held while yawing, the front wall heard ever more obliquely WHEN ours
+    # flies it THEN the remembered face-on wall stops the forward motion at the 1 m line (goal 0.10)
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided
     assert r.overshoot_m is not None and r.overshoot_m <= bound < before
