@@ -257,7 +257,7 @@ class MAVStateUpdater:
         self._dr_v = (vx, vy)
         if imu is not None and imu.yaw_rad is not None:
             self._yaw = imu.yaw_rad
-        if self._yaw is not None and p.memory_keep_s > 0.0:
+        if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw)
 
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
@@ -299,6 +299,7 @@ class MAVStateUpdater:
             vy_m_s=vy,
             vz_m_s=vz,
             mode=mode,
+            odometry=None if self._yaw is None else (self.memory.x, self.memory.y, self._yaw),
         )
         return est, self._clearance(now, m, est)
 

@@ -132,6 +132,10 @@ class StateEstimate:
     vy_m_s: float
     vz_m_s: float
     mode: EstimationMode
+    # Odometry: the speed estimate integrated in a frame fixed at switch-on, turned by the
+    # autopilot's heading (x, y in m, yaw in rad); None without a heading. It drifts: good for
+    # holding station over seconds, not for navigation.
+    odometry: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)

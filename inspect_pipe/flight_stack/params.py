@@ -70,6 +70,10 @@ class BehaviorParams:
         "while the link is lost (waiting_for_connectivity): the repulsion's dead band; the vehicle holds "
         "station a little inside the safe distance instead of backing away",
     )
+    link_loss_hold_gain_1_s: float = param(
+        2.5, 0.0, 10.0, "1/s", "waiting_for_connectivity: speed back to the held position per metre off it"
+    )
+    link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
     stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
     floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")

