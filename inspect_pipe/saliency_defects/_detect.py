@@ -8,7 +8,14 @@ import cv2
 import numpy as np
 
 from ._features import ALIGN, SUPPORT_PX, FeatureStack, check_image, compute_features
-from ._model import ClassModel, DefectModel, class_logit, context_reach_px, sigmoid, to_full_res
+from ._model import (
+    ClassModel,
+    DefectModel,
+    class_logit,
+    context_reach_px,
+    sigmoid,
+    to_full_res,
+)
 
 #: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x margin px holds about
 #: 28 float32 feature maps at once: ~0.3 GB, independent of the image size.

@@ -34,6 +34,8 @@ LINE_LEN_PX = 11  # 11x11 is the largest kernel OpenCV filters directly (13+ swi
 
 #: Side (px at the features' level) of the box the region features (``*_mean``, ``val_std``) average.
 REGION = 31
+#: Side (px) of the structure tensor's averaging box.
+COH_BOX = 7
 
 #: Names of the features, in the order of :func:`compute_features`'s output.
 FEATURE_NAMES: tuple[str, ...] = (
@@ -67,7 +69,7 @@ FEATURE_NAMES: tuple[str, ...] = (
     "dark",  # local darkness z-score (mean_15 - I) / (std_15 + eps)
     "line",  # dark line evidence: local mean - min over 12 orientations of the 11 px line mean
     "line2",  # same at half resolution (22 px lines)
-    "coh",  # structure-tensor coherence at sigma 2 px (elongation)
+    "coh",  # structure-tensor coherence over a 7 px box (elongation)
 )
 
 #: The colour evidence among them (the corrosion cascade's colour model; see ``zc`` context maps).
@@ -357,9 +359,9 @@ def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: d
     if "coh" in want:
         gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
         gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
-        jxx = cv2.GaussianBlur(cv2.multiply(gx, gx), (0, 0), 2.0)
-        jyy = cv2.GaussianBlur(cv2.multiply(gy, gy), (0, 0), 2.0)
-        jxy2 = cv2.GaussianBlur(cv2.multiply(gx, gy, scale=2.0), (0, 0), 2.0)
+        jxx = cv2.blur(cv2.multiply(gx, gx), (COH_BOX, COH_BOX))  # box of 7 px: about a sigma 2 px Gaussian
+        jyy = cv2.blur(cv2.multiply(gy, gy), (COH_BOX, COH_BOX))
+        jxy2 = cv2.blur(cv2.multiply(gx, gy, scale=2.0), (COH_BOX, COH_BOX))
         root = cv2.magnitude(cv2.subtract(jxx, jyy), jxy2)  # sqrt((jxx - jyy)^2 + 4 jxy^2)
         out["coh"] = cv2.divide(root, cv2.add(cv2.add(jxx, jyy), 1e-4))
 

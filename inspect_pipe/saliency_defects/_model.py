@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._features import COLOUR_FEATURES, N_HUE, N_SAT, FeatureStack, _LINES
+from ._features import _LINES, COLOUR_FEATURES, N_HUE, N_SAT, FeatureStack
 
 FORMAT = "inspect_pipe.defect_model/1"
 N_BINS = 48
@@ -48,6 +48,14 @@ def context_reach_px(names) -> int:
     return r
 
 
+def _cv_ready(x: np.ndarray) -> np.ndarray:
+    """float32 with contiguous rows (OpenCV takes row-strided views, such as the feature maps'
+    crops of their padded arrays, without a copy)."""
+    if x.dtype == np.float32 and x.strides[-1] == 4:
+        return x
+    return np.ascontiguousarray(x, np.float32)
+
+
 @dataclass(frozen=True)
 class FeatureTable:
     """LLR table of one feature: continuous values are binned uniformly on [lo, hi] (clipped)."""
@@ -65,7 +73,7 @@ class FeatureTable:
 
     def bins(self, x: np.ndarray) -> np.ndarray:
         """Bin index per pixel, uint8; values past the last bin give 255 (see :meth:`lut`)."""
-        x = np.ascontiguousarray(x, np.float32)
+        x = _cv_ready(x)
         if self.categorical:
             return cv2.convertScaleAbs(cv2.max(x, 0.0))
         scale = self.llr.shape[0] / max(self.hi - self.lo, 1e-9)
@@ -76,7 +84,7 @@ class FeatureTable:
         """Joint bin index (uint8) of a pair table: bin_a * PAIR_BINS + bin_b."""
         out = None
         for x, lo, hi, mul in ((xa, self.lo, self.hi, PAIR_BINS), (xb, self.lo2, self.hi2, 1)):
-            x = np.ascontiguousarray(x, np.float32)
+            x = _cv_ready(x)
             scale = PAIR_BINS / max(hi - lo, 1e-9)
             b = cv2.min(cv2.convertScaleAbs(cv2.max(x, float(lo)), alpha=scale, beta=-lo * scale - 0.5 + 1e-4), PAIR_BINS - 1)
             out = b * np.uint8(mul) if out is None else cv2.add(out, b)

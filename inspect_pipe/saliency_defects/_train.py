@@ -20,7 +20,17 @@ import numpy as np
 from ._detect import class_logits, decide
 from ._features import FEATURE_NAMES, N_HUE, N_SAT, compute_features
 from ._metrics import best_f, tolerance_counts
-from ._model import ALL_CONTEXT_NAMES, CONTEXT_NAMES, N_BINS, PAIR_BINS, ClassModel, FeatureTable, Stage, context_maps, sigmoid
+from ._model import (
+    ALL_CONTEXT_NAMES,
+    CONTEXT_NAMES,
+    N_BINS,
+    PAIR_BINS,
+    ClassModel,
+    FeatureTable,
+    Stage,
+    context_maps,
+    sigmoid,
+)
 
 Loader = Callable[[], tuple[np.ndarray, np.ndarray]]
 
