@@ -53,6 +53,8 @@ class OnboardStack:
         # not settle below it unless the operator asks to descend.
         self._climb_to_m: float | None = None
         self._touchdown_thrust: float | None = None  # thrust when the landing's touchdown was detected
+        self._pre_alarm_height_m: float | None = None  # height held when an alarm mode began
+        self._was_alarm = False
 
     @property
     def fsm(self) -> FlightState:
@@ -111,6 +113,13 @@ class OnboardStack:
             # it finds; frozen, it sat on the floor until the take-off time-out and "flew" there
             # (safety campaign, -28 % thrust: pushed along the floor, stuck at the wall).
             lifting = machine.time_in_state(now_s) < 1.0 or est.vz_m_s >= 0.1
+            if not lifting:
+                # And faster than the speed error alone would (1.5 m/s^2 per s at 0.5 m/s error):
+                # at -27 % thrust the trim took 3.5 s, the take-off time-out declared the vehicle
+                # flying while it still sat on the floor, and the operator's climb was spent
+                # getting to 1 m instead of 2.3 m (safety campaign: flew into a 0.94 m coaming).
+                pid = ctrl.pid_vz
+                pid.integral = min(pid.integral + p.control.takeoff_trim_ramp_m_s3 * dt, pid.integral_limit)
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=False, freeze_integrators=lifting, freeze_xy_integrators=True
             )
@@ -119,6 +128,7 @@ class OnboardStack:
             cmd = beh.command
             if alarm:
                 cmd = SpeedCommand(cmd.vx_m_s, cmd.vy_m_s, 0.0, cmd.yaw_rate_rad_s)
+            self._resume_height_after_alarm(alarm, cmd)
             self._finish_takeoff_climb(cmd, est)
             # In the alarm modes the vertical speed is the IMU-carried speed plus "+val", a real
             # speed error, so the vertical integrator keeps working: frozen, it could not make up
@@ -174,3 +184,17 @@ class OnboardStack:
         (the sonar's minimum), and the vehicle dropped at 1.1 m/s (safety campaign)."""
         t = self._touchdown_thrust
         return nominal_hover_frac if t is None or t <= 0.0 else min(t, 1.0)
+
+    def _resume_height_after_alarm(self, alarm: bool, cmd: SpeedCommand) -> None:
+        """An alarm mode descends; once it clears, climb back to the height held before it.
+
+        Left where the alarm descent ended, the vehicle flew on 1 m lower than the operator had
+        put it, level with coamings the operator had cleared (safety campaign: bottom flow lost
+        for 3 s at 1.7 m, then a 0.77 m box). The operator's own vertical command ends it."""
+        ctrl = self.controller
+        if alarm and not self._was_alarm:
+            self._pre_alarm_height_m = ctrl.height_ref_m
+        elif not alarm and self._was_alarm and self._pre_alarm_height_m is not None and cmd.vz_m_s == 0.0:
+            self._climb_to_m = self._pre_alarm_height_m
+            self._pre_alarm_height_m = None
+        self._was_alarm = alarm

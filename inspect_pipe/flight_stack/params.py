@@ -110,6 +110,9 @@ class ControlParams:
     )
     max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
     max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")
+    takeoff_trim_ramp_m_s3: float = param(
+        2.0, 0.0, 20.0, "m/s^3", "taking off without lifting after 1 s: extra growth of the vertical trim"
+    )
     hover_thrust_frac: float = param(0.4545, 0.1, 0.9, "1", "nominal thrust to hover / max thrust")
 
 

@@ -82,7 +82,12 @@ class MAVBehaviors:
             now_s=now_s,
             estimate=estimate,
             clearance=clearance,
-            stick=operator.stick if operator.link_ok else HOVER,
+            # In the alarm modes (-1, -2) no sensor measures the horizontal speed: the vehicle
+            # descends to land, and the operator's horizontal and vertical commands are not obeyed
+            # (safety campaign: bottom flow lost with the front wall out of sonar range, the operator
+            # kept pushing at 0.6 m/s on an IMU-carried speed and the descent met a coaming's edge).
+            # Yaw stays the operator's.
+            stick=_alarm_stick(operator.stick) if estimate.mode < 0 else (operator.stick if operator.link_ok else HOVER),
             link_ok=operator.link_ok,
             inspection_mode=self.inspection_mode,
             go_ahead_pressed=Button.GO_AHEAD in buttons,
@@ -103,3 +108,7 @@ class MAVBehaviors:
         if not viable:
             names.append(self.low_battery_land.name)
         return BehaviorsOutput(cmd, tuple(names), land_request=not viable)
+
+
+def _alarm_stick(stick: SpeedCommand) -> SpeedCommand:
+    return SpeedCommand(0.0, 0.0, 0.0, stick.yaw_rate_rad_s)
