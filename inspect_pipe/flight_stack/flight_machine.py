@@ -96,12 +96,13 @@ class FlightMachine:
             )
             # On the ground for a moment, not at a bounce's turning point (safety campaign: a
             # battery sag's recovery bounced the vehicle through 0.35 m with zero speed; the ramp
-            # began and it fell from 0.57 m). A vehicle back above 0.5 m is not down.
+            # began and it fell from 0.57 m). A vehicle back above 0.5 m, or rising at more than
+            # 0.2 m/s (a battery sag ending after touchdown), is not down.
             if on_ground and not ev.impact:
                 self._ground_s = self._ground_s + dt
             else:
                 self._ground_s = 0.0
-            if self.touchdown_s is not None and est.mode >= 0 and est.height_m > 0.5:
+            if self.touchdown_s is not None and est.mode >= 0 and (est.height_m > 0.5 or est.vz_m_s > 0.2):
                 self.touchdown_s = None
             if self.touchdown_s is None and (self._ground_s >= p.touchdown_confirm_s or ev.impact or timed_out):
                 self.touchdown_s = now
