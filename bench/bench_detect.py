@@ -26,11 +26,22 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from inspect_pipe.saliency_defects import (  # noqa: E402
-    combine_max, combine_normalised_sum, compute_features, conspicuity_maps, decide,
-    default_model_path, detect, labelled_set, load_model,
+    combine_max,
+    combine_normalised_sum,
+    compute_features,
+    conspicuity_maps,
+    decide,
+    default_model_path,
+    detect,
+    labelled_set,
+    load_model,
 )
 from inspect_pipe.saliency_defects._metrics import (  # noqa: E402
-    best_f, max_fbeta, saliency_curves, to_u8, tolerance_counts,
+    best_f,
+    max_fbeta,
+    saliency_curves,
+    to_u8,
+    tolerance_counts,
 )
 from inspect_pipe.saliency_defects._model import class_logit, sigmoid, to_full_res  # noqa: E402
 

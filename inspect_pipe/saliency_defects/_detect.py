@@ -131,11 +131,10 @@ def decide(prob_u8: np.ndarray, cm: ClassModel) -> tuple[np.ndarray, np.ndarray,
     cand = (prob_u8 >= lo).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8, ltype=cv2.CV_32S)
     del cand
-    keep = np.zeros(n, bool)
     if lo < hi:
-        keep[np.unique(labels[prob_u8 >= hi])] = True
+        keep = np.bincount(labels[prob_u8 >= hi], minlength=n) > 0
     else:
-        keep[:] = True
+        keep = np.ones(n, bool)
     keep[0] = False
     keep &= stats[:, cv2.CC_STAT_AREA] >= cm.min_area_px
     mask = keep[labels]
@@ -145,14 +144,22 @@ def decide(prob_u8: np.ndarray, cm: ClassModel) -> tuple[np.ndarray, np.ndarray,
 def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids) -> list[Region]:
     """One :class:`Region` per kept component id."""
     regions = []
+    if len(ids) == 0:
+        return regions
+    # mean probability of every component in one pass, in row bands (bounded temporaries on mosaics)
+    sums = np.zeros(stats.shape[0])
+    band = max(1, (1 << 20) // max(labels.shape[1], 1))
+    for y0 in range(0, labels.shape[0], band):
+        sums += np.bincount(labels[y0 : y0 + band].ravel(), weights=prob_u8[y0 : y0 + band].ravel(),
+                            minlength=stats.shape[0])
     for i in ids:
         x, y, w, h, area = (int(v) for v in stats[i])
         roi = (labels[y : y + h, x : x + w] == i).astype(np.uint8)
         contours, _ = cv2.findContours(roi, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x, y))
         c = max(contours, key=cv2.contourArea)
-        poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2)
-        conf = float(prob_u8[y : y + h, x : x + w][roi.astype(bool)].mean()) / 255.0
-        regions.append(Region(cls, tuple((int(a), int(b)) for a, b in poly), area, conf, (x, y, w, h)))
+        poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2).tolist()
+        conf = float(sums[i]) / (area * 255.0)
+        regions.append(Region(cls, tuple((a, b) for a, b in poly), area, conf, (x, y, w, h)))
     return regions
 
 

@@ -34,8 +34,8 @@ LINE_LEN_PX = 11  # 11x11 is the largest kernel OpenCV filters directly (13+ swi
 
 #: Side (px at the features' level) of the box the region features (``*_mean``, ``val_std``) average.
 REGION = 31
-#: Side (px) of the structure tensor's averaging box.
-COH_BOX = 7
+#: Side (px at half the features' resolution) of the structure tensor's averaging box.
+COH_BOX = 3
 
 #: Names of the features, in the order of :func:`compute_features`'s output.
 FEATURE_NAMES: tuple[str, ...] = (
@@ -69,7 +69,7 @@ FEATURE_NAMES: tuple[str, ...] = (
     "dark",  # local darkness z-score (mean_15 - I) / (std_15 + eps)
     "line",  # dark line evidence: local mean - min over 12 orientations of the 11 px line mean
     "line2",  # same at half resolution (22 px lines)
-    "coh",  # structure-tensor coherence over a 7 px box (elongation)
+    "coh",  # structure-tensor coherence over a 6 px box (elongation)
 )
 
 #: The colour evidence among them (the corrosion cascade's colour model; see ``zc`` context maps).
@@ -139,16 +139,23 @@ def _to_level(m: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:
     return cv2.resize(m, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_LINEAR)
 
 
-def _centre_surround(pyr: list[np.ndarray], *, signed: bool) -> np.ndarray:
-    """Sum over (c, s) of C(c) - S(s) (or its magnitude), accumulated at level 1."""
-    target = pyr[1].shape
-    acc = np.zeros(target, np.float32)
-    for c in CENTRES:
-        for d in DELTAS:
-            diff = pyr[c] - _to_level(pyr[c + d], pyr[c].shape)
-            if not signed:
-                diff = np.abs(diff)
-            acc += _to_level(diff, target)
+def _centre_surround(pyr: list, *, signed: bool, more: tuple = ()) -> np.ndarray:
+    """Sum over (c, s) of C(c) - S(s) (or its magnitude), at level 1; ``more``: further pyramids
+    whose terms join the sum (the orientation channels). Each centre level's terms are summed at
+    that level and carried to the next finer one by one 2x bilinear step (coarse to fine), so a
+    level-1-sized array is resized 3 times, not 6 per pyramid."""
+    acc = None
+    for c in sorted(CENTRES, reverse=True):
+        part = None
+        for p in (pyr, *more):
+            for d in DELTAS:
+                diff = cv2.subtract(p[c], _to_level(p[c + d], p[c].shape))
+                if not signed:
+                    diff = np.abs(diff)
+                part = diff if part is None else cv2.add(part, diff)
+        acc = part if acc is None else cv2.add(part, _to_level(acc, part.shape))
+    for lv in range(min(CENTRES) - 1, 0, -1):  # centres above level 1: carry down to it
+        acc = _to_level(acc, pyr[lv].shape)
     return acc
 
 
@@ -281,20 +288,19 @@ def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: d
                 out[name] = cs(name, lambda name=name: colour_cs(name))
     if "ori_cs" in want:
         def ori() -> np.ndarray:
-            acc = np.zeros(pyr_i[1].shape, np.float32)
             energies = [None] + [_steered_energy(*hess(lv)) for lv in range(1, TOP_LEVEL + 1)]
-            for k in range(len(ORI_THETAS)):
-                acc += _centre_surround([None if e is None else e[k] for e in energies], signed=False)
-            return acc
+            chans = [[None if e is None else e[k] for e in energies] for k in range(len(ORI_THETAS))]
+            return _centre_surround(chans[0], signed=False, more=tuple(chans[1:]))
         out["ori_cs"] = cs("ori_cs", ori)
     if "sym" in want:
         def sym() -> np.ndarray:
-            acc = np.zeros(pyr_i[1].shape, np.float32)
-            for lv in (1, 2, 3):
+            acc = None
+            for lv in (3, 2, 1):  # coarse to fine, carried down one level at a time
                 l1, l2 = _hessian_eigs(pyr_i[lv], 1.0, hess(lv))
                 # both eigenvalues large and of one sign: rotationally symmetric blob (pit, rust spot)
                 blob = np.where(l1 * l2 > 0, np.sign(l1) * np.minimum(np.abs(l1), np.abs(l2)), 0.0)
-                acc += _to_level(blob.astype(np.float32), pyr_i[1].shape)
+                blob = blob.astype(np.float32)
+                acc = blob if acc is None else cv2.add(blob, _to_level(acc, blob.shape))
             return acc
         out["sym"] = cs("sym", sym)
     for name in ("int_cs", "int_cs_abs", "rg_cs", "by_cs", "sat_cs", "ori_cs", "sym"):
@@ -359,11 +365,18 @@ def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: d
     if "coh" in want:
         gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
         gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
-        jxx = cv2.blur(cv2.multiply(gx, gx), (COH_BOX, COH_BOX))  # box of 7 px: about a sigma 2 px Gaussian
-        jyy = cv2.blur(cv2.multiply(gy, gy), (COH_BOX, COH_BOX))
-        jxy2 = cv2.blur(cv2.multiply(gx, gy, scale=2.0), (COH_BOX, COH_BOX))
+        # tensor products averaged over 2 x 2 blocks, then a 3 x 3 box at half resolution (a 6 px
+        # box in all); the coherence is brought back up bilinearly
+        half = (base[1] // 2, base[0] // 2)
+
+        def avg(a: np.ndarray) -> np.ndarray:
+            return cv2.blur(cv2.resize(a, half, interpolation=cv2.INTER_AREA), (COH_BOX, COH_BOX))
+
+        jxx = avg(cv2.multiply(gx, gx))
+        jyy = avg(cv2.multiply(gy, gy))
+        jxy2 = avg(cv2.multiply(gx, gy, scale=2.0))
         root = cv2.magnitude(cv2.subtract(jxx, jyy), jxy2)  # sqrt((jxx - jyy)^2 + 4 jxy^2)
-        out["coh"] = cv2.divide(root, cv2.add(cv2.add(jxx, jyy), 1e-4))
+        out["coh"] = _to_level(cv2.divide(root, cv2.add(cv2.add(jxx, jyy), 1e-4)), base)
 
     bh, bw = -(-h // 2**level), -(-w // 2**level)
     return FeatureStack(names, tuple(out[n][:bh, :bw] for n in names), level)

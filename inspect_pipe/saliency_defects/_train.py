@@ -74,8 +74,14 @@ class ClassTrainConfig:
 #: z-score, unsigned contrast and fine roughness scored ~0 next to the line detectors; the
 #: full-resolution 11 px line detector added nothing to the 22 px one on validation images).
 CRACK_FEATURES = ("int_cs", "ori_cs", "sym", "val", "rough2", "line2", "coh")
-#: Crack context maps: the 11 px line support of the logit likewise dropped for the 22 px one.
-CRACK_CONTEXT = ("z", "z_mean", "z_box15", "z_box31", "z_box63", "z_line2")
+#: Corrosion features: all but the crack evidence (ridges, darkness, dark lines: ~0 weight, and
+#: validation F unchanged without them).
+CORROSION_FEATURES = tuple(
+    f for f in FEATURE_NAMES if f not in ("ridge1", "ridge2", "ridge3", "dark", "line", "line2")
+)
+#: Crack context maps: the 11 px line support of the logit likewise dropped for the 22 px one, and
+#: the 7 and 31 px box means (small weights; validation F unchanged without them).
+CRACK_CONTEXT = ("z", "z_box15", "z_box63", "z_line2")
 
 
 def brightness_pairs(features) -> tuple[tuple[str, str], ...]:
@@ -92,7 +98,7 @@ DEFAULT_CONFIGS = {
         hysteresis_ratios=(1.0, 0.8, 0.6, 0.45),
     ),
     "corrosion": ClassTrainConfig(
-        cls="corrosion", features=FEATURE_NAMES, needs_colour=True, tol_px=0.0, ignore_band_px=2,
+        cls="corrosion", features=CORROSION_FEATURES, needs_colour=True, tol_px=0.0, ignore_band_px=2,
         pos_per_image=1500, neg_per_image=1500, context=2, smooth_sigma_px=0.5, min_area_px=64, level=1,
     ),
     "surface": ClassTrainConfig(

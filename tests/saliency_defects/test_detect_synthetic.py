@@ -9,7 +9,7 @@ from inspect_pipe.saliency_defects._metrics import mask_prf
 from ._synth import painted_wall_with_rust, pavement_with_cracks
 
 
-# Bounds measured with the shipped model v1 (rust P 0.60 / R 0.98; cracks P 0.64-0.68 / R 1.0),
+# Bounds measured with the shipped model v1 (rust P 0.59 / R 0.98; cracks P 0.62-0.67 / R 1.0),
 # less a margin. The VT labels the model learnt from are coarse polygons, so it over-grows blob
 # borders by a few pixels (corrosion is computed at half resolution, which adds about a pixel:
 # rust P was 0.66 at full resolution): precision is the weaker side for both classes.
