@@ -54,3 +54,29 @@ def test_training_learns_synthetic_rust_and_round_trips(tmp_path):
     assert p > 0.85 and r > 0.85, (p, r)
     det0 = detect(img, model, kinds=("corrosion",))
     assert np.array_equal(det0.prob, det.prob)
+
+
+def test_half_resolution_class_with_joint_tables_trains_and_round_trips(tmp_path):
+    # GIVEN synthetic rusty walls and a class computed at pyramid level 1 with brightness-joint tables
+    rng = np.random.default_rng(4)
+    data = [painted_wall_with_rust(rng, 192, 256, n_blobs=3) for _ in range(7)]
+    train = [(lambda d=d: d) for d in data[:6]]
+    feats = ("rg_cs", "hs", "val", "lab_a", "sat_mean", "rough", "coh")
+    cfg = ClassTrainConfig(cls="corrosion", features=feats, pos_per_image=400, neg_per_image=400, level=1,
+                           context=1, pairs=(("lab_a", "val"), ("rough", "val")), min_area_px=30)
+    # WHEN it is trained, saved and loaded
+    cm = train_class(train, cfg, log=lambda *_: None)
+    assert cm.level == 1 and {"lab_a*val", "rough*val"} <= set(cm.stages[0].names)
+    model = DefectModel({"corrosion": cm}, {"version": "test"})
+    save_model(model, tmp_path / "m.npz")
+    loaded = load_model(tmp_path / "m.npz")
+    # THEN the loaded model keeps the level and the joint tables, finds the unseen wall's rust at
+    # full resolution, and gives the same map
+    assert loaded.classes["corrosion"].level == 1
+    assert loaded.classes["corrosion"].stages[0].names == cm.stages[0].names
+    img, gt = data[6]
+    det = detect(img, loaded, kinds=("corrosion",))
+    assert det.prob.shape == gt.shape
+    p, r, _ = mask_prf(det.mask, gt)
+    assert p > 0.75 and r > 0.85, (p, r)
+    assert np.array_equal(detect(img, model, kinds=("corrosion",)).prob, det.prob)

@@ -68,3 +68,20 @@ def test_grey_image_refused_for_corrosion_but_fine_for_cracks(model):
         detect(grey, model, kinds=("corrosion",))
     det = detect(grey, model, kinds=("crack",))
     assert det.mask.any()
+
+
+def test_half_resolution_features_are_local_and_shared_pyramids_change_nothing():
+    rng = np.random.default_rng(6)
+    img, _ = painted_wall_with_rust(rng, 512, 1024)
+    img2 = img.copy()
+    img2[:, 768:] = 255 - img2[:, 768:]
+    f1, f2 = compute_features(img, level=1), compute_features(img2, level=1)
+    assert f1.shape == (256, 512)
+    # columns 0..99 at level 1 are image columns 0..199, far from the change at 768
+    assert np.allclose(f1.data[:, :, :100], f2.data[:, :, :100], atol=1e-4)
+    # computing both levels with one shared pyramid gives what separate calls give
+    shared: dict = {}
+    g0 = compute_features(img, ("int_cs", "ori_cs", "coh"), level=0, shared=shared)
+    g1 = compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1, shared=shared)
+    assert np.array_equal(g0.data, compute_features(img, ("int_cs", "ori_cs", "coh")).data)
+    assert np.array_equal(g1.data, compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1).data)
