@@ -17,8 +17,9 @@ from ._model import (
     to_full_res,
 )
 
-#: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x margin px holds about
-#: 28 float32 feature maps at once: ~0.3 GB, independent of the image size.
+#: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x 448 px holds the crack
+#: class's 7 full-resolution float32 maps, corrosion's 22 at half resolution and the shared
+#: pyramids at once: a few hundred MB, independent of the image size.
 TILE_PX = 768
 #: Images of at most this many tile areas are processed whole (see class_probabilities_u8).
 WHOLE_TILES = 5.5

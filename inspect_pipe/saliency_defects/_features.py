@@ -6,7 +6,8 @@ whole image. Itti-style per-image normalisation N(.) is deliberately replaced by
 the learned likelihood tables calibrate each feature, and global normalisation would make a
 pixel's probability depend on what else happens to be in the frame (and break tiling).
 
-Shapes: image (H, W, 3) uint8 BGR or (H, W) uint8 grey in; every feature (H, W) float32 out.
+Shapes: image (H, W, 3) uint8 BGR or (H, W) uint8 grey in; every feature (H, W) float32 out at
+level 0, (ceil(H/2), ceil(W/2)) at level 1.
 """
 
 from __future__ import annotations
