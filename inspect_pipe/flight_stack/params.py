@@ -74,6 +74,10 @@ class BehaviorParams:
         2.5, 0.0, 10.0, "1/s", "waiting_for_connectivity: speed back to the held position per metre off it"
     )
     link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
+    covered_half_angle_deg: float = param(15.0, 0.0, 45.0, "deg", "half-width of the sonar beams: motion within it of an axis is seen")
+    blind_attenuation_start_m: float = param(
+        3.0, 1.0, 6.0, "m", "diagonal motion between the beams slows from this distance to the nearer wall"
+    )
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
     stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
     floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")

@@ -47,8 +47,23 @@ def test_stop_point_accounts_for_response_time_and_braking():
 
 
 def test_attenuated_go_attenuates_only_towards_the_obstacle():
-    v = AttenuatedGo(P).update(_in(SpeedCommand(0.4, 0.3, 0.0, 0.2), front=1.25, left=3.0), 0.02)
-    assert v.vx_m_s == pytest.approx(0.2) and v.vy_m_s == pytest.approx(0.3) and v.yaw_rate_rad_s == 0.2
+    v = AttenuatedGo(P).update(_in(SpeedCommand(0.4, 0.05, 0.0, 0.2), front=1.25, left=3.0), 0.02)
+    assert v.vx_m_s == pytest.approx(0.2) and v.vy_m_s == pytest.approx(0.05) and v.yaw_rate_rad_s == 0.2
+    side = AttenuatedGo(P).update(_in(SpeedCommand(0.0, 0.3, 0.0, 0.0), front=1.0, left=3.0), 0.02)
+    assert side.vy_m_s == pytest.approx(0.3)  # sliding along the wall: seen by the left beam
+
+
+def test_diagonal_motion_between_the_beams_slows_near_a_wall():
+    # GIVEN a diagonal stick (45 deg: outside the +-15 deg beams) 2 m from the front wall
+    v = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.5, 0.0, 0.0), front=2.0, left=4.0), 0.02)
+    # THEN the whole vector is scaled by the attenuation from 3 m to 1 m on the nearer wall
+    k = (2.0 - P.safe_distance_m) / (P.blind_attenuation_start_m - P.safe_distance_m)
+    assert (v.vx_m_s, v.vy_m_s) == (pytest.approx(0.5 * k), pytest.approx(0.5 * k))
+    # AND far from walls, or within a beam, nothing changes
+    free = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.5, 0.0, 0.0), front=None, left=None), 0.02)
+    assert (free.vx_m_s, free.vy_m_s) == (0.5, 0.5)
+    near_axis = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.1, 0.0, 0.0), front=2.0, left=4.0), 0.02)
+    assert (near_axis.vx_m_s, near_axis.vy_m_s) == (0.5, 0.1)
     back = AttenuatedGo(P).update(_in(SpeedCommand(-0.4, 0, 0, 0), front=1.1), 0.02)
     assert back.vx_m_s == pytest.approx(-0.4)
 

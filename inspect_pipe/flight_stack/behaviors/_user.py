@@ -3,6 +3,8 @@ attenuated_inspect (and the go_ahead/inspect_ahead latches)."""
 
 from __future__ import annotations
 
+import math
+
 from inspect_pipe.flight_stack.behaviors._obstacle_math import attenuation, clamp
 from inspect_pipe.flight_stack.messages import BehaviorInputs, SpeedCommand
 from inspect_pipe.flight_stack.params import BehaviorParams
@@ -26,4 +28,25 @@ def attenuate(cmd: SpeedCommand, inputs: BehaviorInputs, p: BehaviorParams) -> S
         vy = 0.0 if c.right_stale else vy * attenuation(c.right_m, start_m=start, stop_m=stop)
     if vz < 0.0:
         vz *= attenuation(c.down_m, start_m=p.floor_attenuation_start_m, stop_m=p.floor_clearance_m)
-    return SpeedCommand(vx, vy, vz, cmd.yaw_rate_rad_s)
+    k = blind_direction_factor(vx, vy, inputs, p)
+    return SpeedCommand(vx * k, vy * k, vz, cmd.yaw_rate_rad_s)
+
+
+def blind_direction_factor(vx: float, vy: float, inputs: BehaviorInputs, p: BehaviorParams) -> float:
+    """Speed factor for a diagonal motion that no sonar beam looks along (beyond the paper).
+
+    The sonars look ahead, left and right (+-15 deg beams); a diagonal path between them crosses
+    space no sensor has heard, and the convex corner of a pillar or coaming standing in it is only
+    heard when the vehicle is already too close to stop (safety campaign: diagonal pushes into
+    pillar corners). Obstacles stand at the walls, so near a wall a diagonal motion is slowed,
+    from ``blind_attenuation_start_m`` on the nearer of the two neighbouring sonars down to 0 at
+    the safe distance, as far out as PX4's collision prevention starts its own scaling."""
+    if vx <= 0.0 or vy == 0.0:
+        return 1.0
+    off_axis = math.degrees(math.atan2(abs(vy), vx))
+    if off_axis <= p.covered_half_angle_deg or off_axis >= 90.0 - p.covered_half_angle_deg:
+        return 1.0
+    c = inputs.clearance
+    side = c.left_m if vy > 0.0 else c.right_m
+    near = min((d for d in (c.front_m, side) if d is not None), default=None)
+    return attenuation(near, start_m=p.blind_attenuation_start_m, stop_m=p.safe_distance_m)
