@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from inspect_pipe.flight import FlightLogWriter, load_scenario, parse_scenario, run_scenario
+from inspect_pipe.flight.runner import SimParts
 from inspect_pipe.flight_stack import StackParams
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,7 +67,7 @@ def run(data: Path) -> str:  # data: unused, the scenarios ship with the code
     out = io.StringIO()
     w = out.write
     w("## Flight stack and simulator\n\n")
-    w("Embedded MuJoCo simulator (400 Hz physics, 50 Hz onboard tick), `python -m bench --only flight`.\n\n")
+    w(f"Embedded MuJoCo simulator ({SimParts().physics_hz:.0f} Hz physics, 50 Hz onboard tick), `python -m bench --only flight`.\n\n")
 
     # Tick time and simulation speed over the paper's scenarios.
     ticks: list[float] = []

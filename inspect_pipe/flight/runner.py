@@ -69,7 +69,7 @@ class SimParts:
     firmware: AttitudeFirmware = AttitudeFirmware()
     sensors: SensorSpecs = SensorSpecs()
     link: LinkSpec = LinkSpec()
-    physics_hz: float = 400.0
+    physics_hz: float = 200.0
 
 
 def stack_params_for(scenario: Scenario, params: StackParams | None = None) -> StackParams:

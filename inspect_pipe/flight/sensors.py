@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import math
 import random
+
+import numpy as np
 from collections import deque
 import dataclasses
 from dataclasses import dataclass, field
@@ -90,6 +92,26 @@ class SensorFaults:
 NO_FAULTS = SensorFaults()
 
 
+class _NormalStream:
+    """Gaussian noise drawn in blocks from numpy's PCG64: the sensors draw about 900 samples per
+    simulated second, and ``random.gauss`` one at a time was 8 % of a campaign's CPU time."""
+
+    __slots__ = ("_gen", "_buf", "_i")
+
+    def __init__(self, seed: int, block: int = 4096) -> None:
+        self._gen = np.random.Generator(np.random.PCG64(seed))
+        self._buf: list[float] = self._gen.standard_normal(block).tolist()
+        self._i = 0
+
+    def gauss(self, mu: float, sigma: float) -> float:
+        i = self._i
+        if i == len(self._buf):
+            self._buf = self._gen.standard_normal(len(self._buf)).tolist()
+            i = 0
+        self._i = i + 1
+        return mu + sigma * self._buf[i]
+
+
 def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, float], ...]:
     """Body-frame unit directions across a horizontal sonar's beam, the axis first."""
     n, half = max(1, specs.sonar_beam_rays), math.radians(specs.sonar_half_beam_deg)
@@ -150,6 +172,7 @@ class SensorSuite:
         self._imu_prev = None
         self._next_due = 0.0
         self._imu_bias = tuple(r.gauss(0, self.s.imu.bias_m_s2) for _ in range(3))
+        self.noise = _NormalStream(seed * 104729 + 11)  # per-sample measurement noise
         # Heading drift of a gyro-only attitude estimate (no usable compass in a steel hold); its
         # own generator, so the other noise sequences stay as they were.
         self._yaw_drift_rad_s = random.Random(seed * 7919 + 29).gauss(0.0, self.s.imu.yaw_drift_rad_s)
@@ -178,7 +201,7 @@ class SensorSuite:
         ax, ay, az = ((v[k] - prev[1][k]) / dt for k in range(3))
         _, _, yaw = sim.euler()
         c, sn = math.cos(yaw), math.sin(yaw)
-        g, im = self.rng.gauss, self.s.imu
+        g, im = self.noise.gauss, self.s.imu
         b = self._imu_bias
         return ImuReading(
             now,
@@ -191,7 +214,7 @@ class SensorSuite:
     def _range(self, spec: RangeSpec, true_m: float | None) -> float | None:
         if true_m is None or true_m > spec.max_range_m:
             return None
-        noisy = true_m + self.rng.gauss(0.0, spec.noise_m + spec.noise_per_m * true_m)
+        noisy = true_m + self.noise.gauss(0.0, spec.noise_m + spec.noise_per_m * true_m)
         return max(spec.min_range_m, round(noisy, 3))  # the HRLV reports its minimum when closer
 
     @property
@@ -256,7 +279,7 @@ class SensorSuite:
         c, sn = math.cos(yaw), math.sin(yaw)
         hx, hy = c * vx + sn * vy, -sn * vx + c * vy
         bx, by = self.bias[name]
-        g = self.rng.gauss
+        g = self.noise.gauss
         if scale_range is None:
             sigma, quality = 0.0, 0
         else:

@@ -113,7 +113,7 @@ class QuadrotorSim:
         *,
         vehicle: VehicleModel | None = None,
         firmware: AttitudeFirmware | None = None,
-        physics_hz: float = 400.0,
+        physics_hz: float = 200.0,
         seed: int = 0,
     ) -> None:
         self.vehicle = vehicle or VehicleModel()
