@@ -102,7 +102,7 @@ class ControlParams:
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
     )
     vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s")
-    vz_ki_1_s2: float = param(1.5, 0.0, 20.0, "1/s^2")
+    vz_ki_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2")
     height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")
     height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3")
     height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s")
