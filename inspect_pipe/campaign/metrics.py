@@ -3,7 +3,8 @@ their aggregation per shield.
 
 Definitions (all distances from the vehicle's centre unless said otherwise):
 
-* clearance from the rotor envelope: distance to the nearest wall or box minus 0.27 m (arm 0.17 m
+* clearance from the rotor envelope: distance to the nearest wall or box (a box top straight
+  below counts as floor, as in the runner) minus 0.27 m (arm 0.17 m
   + rotor 0.1 m), over the airborne part of the flight;
 * overshoot: how far inside the 1 m stop line the vehicle came (front, left and right walls and
   boxes, along the world axes), over ticks with no fault active in the last second;
@@ -110,7 +111,7 @@ class EpisodeMonitor:
         if rec.collided and not r.collided:
             r.collided, r.collided_at_s = True, t
         if airborne:
-            r.min_clearance_m = min(r.min_clearance_m, self.geo.wall_distance(x, y, z) - ROTOR_ENVELOPE_M)
+            r.min_clearance_m = min(r.min_clearance_m, self.geo.side_distance(x, y, z) - ROTOR_ENVELOPE_M)
         d = rec.dist_true
         flying = out.fsm is FlightState.FLYING
         if flying and not self._fault_recent(t):

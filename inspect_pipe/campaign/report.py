@@ -132,7 +132,7 @@ def _worst_plots(summary, per_shield, out: Path, plt) -> list[tuple[str, str]]:
         from inspect_pipe.flight.geometry import HoldGeometry
 
         g = HoldGeometry(sc.world)
-        a2.plot([r.t for r in trace], [g.wall_distance(*r.pos_true) - 0.27 for r in trace], lw=1, label="clearance")
+        a2.plot([r.t for r in trace], [g.side_distance(*r.pos_true) - 0.27 for r in trace], lw=1, label="clearance")
         for f in sc.faults:
             a2.axvspan(f.t_s, f.t_s + f.duration_s, alpha=0.15, color="r")
         a2.axhline(0, color="k", lw=0.8)

@@ -11,7 +11,7 @@ from inspect_pipe.flight import load_scenario, run_scenario
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater
 from inspect_pipe.flight_stack.messages import EstimationMode, ImuReading, Measurements
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "regressions" / "open" / "campaign_range_loss_coast_e183.yaml"
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "regressions" / "campaign_range_loss_coast_e183.yaml"
 
 
 def test_alarm_mode_carries_the_speed_with_the_imu_and_leaks_it_to_zero():
