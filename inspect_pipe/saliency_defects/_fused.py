@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._detect import Detection, Region, class_probabilities_u8, regions_of
+from ._detect import Detection, class_probabilities_u8
 from ._model import DefectModel, load_model
 from ._onnx_detect import (
     MIN_AREA_PX,
@@ -31,6 +31,7 @@ from ._onnx_detect import (
     OnnxModel,
     _check,
     _decide,
+    _detection,
     load_onnx_model,
     onnx_probabilities_u8,
 )
@@ -134,16 +135,7 @@ def fused_probabilities_u8(image: np.ndarray, model: FusedModel, kinds, *, tile_
 def detect_fused(image: np.ndarray, model: FusedModel, *, kinds=("corrosion", "crack"), tile_px: int = 768) -> Detection:
     """Like :func:`detect`, on the fused maps. Raises ValueError for an unusable image (the
     saliency engine's rules: colour needed for corrosion; the network's: sides >= 32 px)."""
-    probs = fused_probabilities_u8(image, model, kinds, tile_px=tile_px)
-    h, w = image.shape[:2]
-    mask = np.zeros((h, w), bool)
-    regions: list[Region] = []
-    for k in kinds:
-        m, labels, stats, ids = _decide(probs[k], model.thresholds_u8[k], model.min_area_px[k])
-        mask |= m
-        regions += regions_of(k, probs[k], labels, stats, ids)
-    prob = probs[kinds[0]].copy() if len(kinds) == 1 else np.maximum.reduce([probs[k] for k in kinds])
-    return Detection(prob, mask, probs, tuple(regions))
+    return _detection(fused_probabilities_u8(image, model, kinds, tile_px=tile_px), model, kinds)
 
 
 # ----------------------------------------------------------------------------- fitting

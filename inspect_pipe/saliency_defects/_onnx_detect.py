@@ -173,6 +173,8 @@ def _decide(prob_u8: np.ndarray, threshold_u8: int, min_area_px: int):
 
 
 def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds) -> Detection:
+    """Decision, regions and the combined map from per-class maps; ``model`` gives per-class
+    ``thresholds_u8`` and ``min_area_px`` (the onnx model or the fused parameters)."""
     h, w = next(iter(probs.values())).shape
     mask = np.zeros((h, w), bool)
     regions: list[Region] = []
