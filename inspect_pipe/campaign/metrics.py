@@ -7,7 +7,13 @@ Definitions (all distances from the vehicle's centre unless said otherwise):
   below counts as floor, as in the runner) minus 0.27 m (arm 0.17 m
   + rotor 0.1 m), over the airborne part of the flight;
 * overshoot: how far inside the 1 m stop line the vehicle came (front, left and right walls and
-  boxes, along the world axes), over ticks with no fault active in the last second;
+  boxes, along the world axes), over ticks with no fault active in the last second. A surface
+  that comes into a world axis's line of sight already inside the line (the distance along the
+  axis drops by more than ``ENTRY_JUMP_M`` in one tick: the vehicle slid past the end of a box or
+  a pillar, it did not approach it) moves that axis's line to where the surface appeared, until
+  the vehicle is outside the 1 m line again: overshoot then counts only what the vehicle closed
+  beyond it. The depth of such entries is reported on its own (``lateral_entry_m``), and the
+  nearness to a box's corner they bring shows in the minimum clearance;
 * dithering: sign changes of the speed along a wall's normal (hysteresis 0.03 m/s) while the
   operator pushes into that wall within 1.3 m of it;
 * stuck: an escape the operator asked for (sideways out of a corner or along a wall) made less
@@ -16,8 +22,10 @@ Definitions (all distances from the vehicle's centre unless said otherwise):
   operator pushes into, until the command into that sector is <= 0.05 m/s (never: the blackout's
   duration, counted as unblocked);
 * link-loss hover time: from the start of a link loss (>= 0.5 s, stick off-centre, flying) to
-  the first horizontal command <= 0.01 m/s; drift: horizontal displacement from then until the
-  link is back (at most 10 s);
+  the first horizontal command <= 0.01 m/s; braking: horizontal distance from there to where the
+  vehicle first comes to rest (true speed < 0.1 m/s); drift: largest horizontal displacement from
+  that rest point until the link is back, within 10 s of the hover command (the hover's drift, "over 10 s";
+  braking from the operator's speed is physics: 0.3-0.6 m from 0.8 m/s, so it is reported apart);
 * altitude excursion over floor steps: largest |z - z before the step| within 3 s after the
   surface below changes by > 0.25 m, with the stick's vertical speed zero;
 * false "landed": the flight machine says landed while the true height above the surface below
@@ -40,6 +48,7 @@ __all__ = ["EpisodeMonitor", "EpisodeResult", "aggregate", "ROTOR_ENVELOPE_M", "
 
 ROTOR_ENVELOPE_M = 0.27
 STOP_LINE_M = 1.0
+ENTRY_JUMP_M = 0.15  # a closing of 0.15 m in one 20 ms tick (7.5 m/s) is a new surface, not motion
 LEG_HEIGHT_M = 0.08
 _SECTOR_OF_SENSOR = {SensorName.FRONT_FLOW: (1.0, 0.0), SensorName.LEFT_SONAR: (0.0, 1.0), SensorName.RIGHT_SONAR: (0.0, -1.0)}
 
@@ -55,6 +64,7 @@ class EpisodeResult:
     collided_at_s: float | None = None
     min_clearance_m: float = math.inf
     overshoot_m: float | None = None
+    lateral_entry_m: float | None = None
     dither_changes: int = 0
     dither_held_s: float = 0.0
     stuck: bool = False
@@ -62,6 +72,7 @@ class EpisodeResult:
     stale_unblocked: int = 0
     link_hover_s: list[float] = field(default_factory=list)
     link_drift_m: list[float] = field(default_factory=list)
+    link_brake_m: list[float] = field(default_factory=list)
     altitude_excursion_m: float | None = None
     false_landed: bool = False
     sim_s: float = 0.0
@@ -93,6 +104,8 @@ class EpisodeMonitor:
         self._escape_bad: set[int] = set()
         self._stale: dict[int, float | None] = {}  # fault index -> block time or None (pending)
         self._link: dict[int, dict] = {}
+        self._prev_near: list[float] | None = None  # front, left, right distance along world axes
+        self._line = [STOP_LINE_M] * 3  # each axis's stop line (moved by a lateral entry)
 
     def _fault_recent(self, t: float, within_s: float = 1.0) -> bool:
         return any(f.t_s <= t <= end + within_s for f, end in zip(self.faults, self._fault_end))
@@ -114,10 +127,13 @@ class EpisodeMonitor:
             r.min_clearance_m = min(r.min_clearance_m, self.geo.side_distance(x, y, z) - ROTOR_ENVELOPE_M)
         d = rec.dist_true
         flying = out.fsm is FlightState.FLYING
+        self._stop_lines((d.front, d.left, d.right))
         if flying and not self._fault_recent(t):
-            near = min(d.front, d.left, d.right)
-            over = STOP_LINE_M - near
+            over = max(line - dist for line, dist in zip(self._line, (d.front, d.left, d.right)))
             r.overshoot_m = max(r.overshoot_m if r.overshoot_m is not None else 0.0, over, 0.0)
+            entry = STOP_LINE_M - min(self._line)
+            if entry > 0.0:
+                r.lateral_entry_m = max(r.lateral_entry_m or 0.0, entry)
         if flying:
             self._dither(rec, stick_w, (d.front, d.left, d.right))
             self._stale_sectors(t, stick_w, cmd_w)
@@ -130,6 +146,14 @@ class EpisodeMonitor:
         r.sim_s = t
 
     # ------------------------------------------------------------------ the metrics
+    def _stop_lines(self, dists) -> None:
+        prev, self._prev_near = self._prev_near, list(dists)
+        for k, dist in enumerate(dists):
+            if dist >= STOP_LINE_M:
+                self._line[k] = STOP_LINE_M
+            elif prev is not None and prev[k] - dist > ENTRY_JUMP_M:
+                self._line[k] = min(self._line[k], dist)
+
     def _dither(self, rec, stick_w, dists) -> None:
         vx, vy = rec.vel_true[0], rec.vel_true[1]
         for k, (nx, ny) in enumerate(((1.0, 0.0), (0.0, 1.0), (0.0, -1.0))):
@@ -176,17 +200,23 @@ class EpisodeMonitor:
             if st is None:
                 if f.t_s <= t < f.t_s + 0.03:
                     if math.hypot(*stick_w) > 0.05:
-                        self._link[i] = {"t0": f.t_s, "hover_t": None, "pos": None, "drift": 0.0}
+                        self._link[i] = {"t0": f.t_s, "hover_t": None, "pos": None, "rest": None, "brake": 0.0, "drift": 0.0}
                 continue
             if t > f.t_s + f.duration_s:
                 continue
             cmd = rec.out.command
             if st["hover_t"] is None:
                 if abs(cmd.vx_m_s) <= 0.01 and abs(cmd.vy_m_s) <= 0.01:
-                    st["hover_t"], st["pos"] = t, rec.pos_true[:2]
+                    st["hover_t"], st["pos"], st["brake"] = t, rec.pos_true[:2], 0.0
             elif t - st["hover_t"] <= 10.0:
-                p0 = st["pos"]
-                st["drift"] = max(st["drift"], math.hypot(rec.pos_true[0] - p0[0], rec.pos_true[1] - p0[1]))
+                p0, p = st["pos"], rec.pos_true[:2]
+                if st["rest"] is None:
+                    st["brake"] = max(st["brake"], math.hypot(p[0] - p0[0], p[1] - p0[1]))
+                    if math.hypot(rec.vel_true[0], rec.vel_true[1]) < 0.1:
+                        st["rest"] = p
+                else:
+                    r0 = st["rest"]
+                    st["drift"] = max(st["drift"], math.hypot(p[0] - r0[0], p[1] - r0[1]))
 
     def _escapes(self, t, x, y) -> None:
         for i, e in enumerate(self.spec.escapes):
@@ -225,6 +255,7 @@ class EpisodeMonitor:
             if st["hover_t"] is not None:
                 r.link_hover_s.append(round(st["hover_t"] - st["t0"], 3))
                 r.link_drift_m.append(round(st["drift"], 3))
+                r.link_brake_m.append(round(st["brake"], 3))
         r.wall_s = wall_s
         return r
 
@@ -248,10 +279,12 @@ def aggregate(results: list[EpisodeResult]) -> dict:
     collisions = [r for r in results if r.collided]
     clear = [r.min_clearance_m for r in results if math.isfinite(r.min_clearance_m)]
     over = [r.overshoot_m for r in results if r.overshoot_m is not None and not r.collided]
+    entries = [r.lateral_entry_m for r in results if r.lateral_entry_m is not None and not r.collided]
     dither = [10.0 * r.dither_changes / r.dither_held_s for r in results if r.dither_held_s >= 2.0]
     stale = [s for r in results for s in r.stale_block_s]
     hover = [s for r in results for s in r.link_hover_s]
     drift = [s for r in results for s in r.link_drift_m]
+    brake = [s for r in results for s in r.link_brake_m]
     alt = [r.altitude_excursion_m for r in results if r.altitude_excursion_m is not None]
     subsets: dict[str, dict] = {}
     for name in sorted({s for r in results for s in r.subsets}):
@@ -265,6 +298,8 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "min_clearance_median_m": _rnd(_pct(clear, 0.5)),
         "overshoot_max_m": _rnd(max(over)) if over else None,
         "overshoot_p99_m": _rnd(_pct(over, 0.99)),
+        "lateral_entry_max_m": _rnd(max(entries)) if entries else 0.0,
+        "lateral_entry_episodes": len(entries),
         "dither_changes_per_10s_median": _rnd(_pct(dither, 0.5)),
         "dither_changes_per_10s_max": _rnd(max(dither)) if dither else None,
         "stuck_episodes": sum(r.stuck for r in results),
@@ -275,6 +310,8 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "link_loss_hover_s_max": _rnd(max(hover)) if hover else None,
         "link_loss_hover_s_median": _rnd(_pct(hover, 0.5)),
         "link_loss_drift_m_max": _rnd(max(drift)) if drift else None,
+        "link_loss_brake_m_max": _rnd(max(brake)) if brake else None,
+        "link_loss_brake_m_median": _rnd(_pct(brake, 0.5)),
         "altitude_excursion_m_max": _rnd(max(alt)) if alt else None,
         "altitude_excursion_m_median": _rnd(_pct(alt, 0.5)),
         "false_landed": sum(r.false_landed for r in results),

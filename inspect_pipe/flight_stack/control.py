@@ -18,9 +18,17 @@ G = 9.81
 class PID:
     """PID with a clamped integrator and optional measured derivative. Time step passed in."""
 
-    def __init__(self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf) -> None:
+    def __init__(
+        self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf,
+        unwind_factor: float = 1.0, unwind_threshold: float = math.inf,
+    ) -> None:
         self.kp, self.ki, self.kd = kp, ki, kd
         self.integral_limit = integral_limit
+        # Fast unwinding: an integral that pushes against a large error (|error| > threshold) is
+        # left over from a disturbance that has gone, e.g. the tilt that held the vehicle against a
+        # gust; it unwinds ``unwind_factor`` times faster. Small errors (noise around a steady
+        # trim) integrate at ki both ways, so the steady trim is not biased.
+        self.unwind_factor, self.unwind_threshold = unwind_factor, unwind_threshold
         self.integral = 0.0
         self._prev_error: float | None = None
 
@@ -28,10 +36,16 @@ class PID:
         self.integral = integral
         self._prev_error = None
 
-    def update(self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False) -> float:
-        """``rate``: d(error)/dt when measured directly (avoids differentiating noise)."""
+    def update(
+        self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False, unwind: bool = True
+    ) -> float:
+        """``rate``: d(error)/dt when measured directly (avoids differentiating noise);
+        ``unwind``: fast unwinding allowed this step."""
         if not freeze and dt > 0.0:
-            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + self.ki * error * dt))
+            ki = self.ki
+            if unwind and self.integral * error < 0.0 and abs(error) > self.unwind_threshold:
+                ki *= self.unwind_factor
+            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + ki * error * dt))
         if rate is None:
             rate = 0.0 if self._prev_error is None or dt <= 0.0 else (error - self._prev_error) / dt
         self._prev_error = error
@@ -49,8 +63,9 @@ class FlightController:
     def __init__(self, params: ControlParams | None = None) -> None:
         p = self.p = params or ControlParams()
         lim = p.integral_limit_m_s2
-        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
-        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim)
+        unwind = dict(unwind_factor=p.speed_unwind_factor, unwind_threshold=p.speed_unwind_threshold_m_s)
+        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
+        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
         vlim = p.vertical_integral_limit_m_s2
         self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim)
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
@@ -87,8 +102,14 @@ class FlightController:
         # crept the vehicle past the stop line at a wall (safety campaign: link-loss "hover"
         # 2 s late while the repulsion pushed it back out, overshoot).
         ff = p.speed_drag_ff_1_s
-        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy) + ff * cmd.vx_m_s
-        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy) + ff * cmd.vy_m_s
+        # Fast unwinding only while holding (command ~0: a stop, a hover): a gust's leftover trim
+        # then carries the vehicle past a stop line. While the operator's command changes
+        # (attenuation near a wall) the integrator tracks at its own pace, as in the paper.
+        hold = p.speed_unwind_hold_m_s
+        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy, unwind=abs(cmd.vx_m_s) <= hold)
+        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy, unwind=abs(cmd.vy_m_s) <= hold)
+        ax += ff * cmd.vx_m_s
+        ay += ff * cmd.vy_m_s
         mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED
         if mode is VerticalMode.HEIGHT:
             if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:

@@ -10,6 +10,7 @@ descend.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.messages import (
@@ -19,7 +20,7 @@ from inspect_pipe.flight_stack.messages import (
     RangeReading,
     StateEstimate,
 )
-from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory
+from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory, oblique_wall
 from inspect_pipe.flight_stack.params import EstimationParams
 
 __all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "RangeSlope", "SensorStatus", "select_mode"]
@@ -204,6 +205,8 @@ class MAVStateUpdater:
         )
         self._yaw: float | None = None  # last heading the autopilot reported
         self._memory_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
+        self._wall_stamps = {"left": -1.0, "right": -1.0}
+        self._stuck = {k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_min_m_s) for k in ("bottom", "front")}
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
@@ -214,6 +217,8 @@ class MAVStateUpdater:
         bf, ff = m.bottom_flow, m.front_flow
         b_flow = bf is not None and now - bf.stamp_s <= p.flow_timeout_s and bf.quality >= p.flow_min_quality
         f_flow = ff is not None and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
+        b_flow = b_flow and not self._stuck["bottom"].check(bf.stamp_s, (bf.vx_m_s, bf.vy_m_s))  # type: ignore[union-attr]
+        f_flow = f_flow and not self._stuck["front"].check(ff.stamp_s, (ff.vy_m_s, ff.vz_m_s))  # type: ignore[union-attr]
         return SensorStatus(
             bottom_px=b_flow and b_sonar,
             bottom_tof=_fresh_range(m.bottom_tof, now, p.tof_timeout_s, p.tof_max_range_m),
@@ -329,6 +334,7 @@ class MAVStateUpdater:
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
         left, right = at_now(m.left_sonar, est.vy_m_s), at_now(m.right_sonar, -est.vy_m_s)
         if self._yaw is not None and p.memory_keep_s > 0.0:
+            self._oblique_walls(m, est, closing, front, left, right)
             front, left, right = (
                 self._remembered(now, name, axis, r, d)
                 for name, axis, r, d in (
@@ -350,6 +356,45 @@ class MAVStateUpdater:
             right_closing_m_s=closing["right"],
         )
 
+    def _oblique_walls(
+        self, m: Measurements, est: StateEstimate, closing: dict[str, float | None],
+        front: float | None, left: float | None, right: float | None,
+    ) -> None:
+        """Store the wall that the front sonar and a side sonar hear together at an angle
+        (:func:`oblique_wall`), when either has a fresh echo: pushed while yawing, the vehicle
+        otherwise stops on readings that overstate the perpendicular distance (safety campaign).
+
+        Two readings alone cannot tell such a wall from an inside corner, and a wall across a
+        corner blocked the escape along one of its walls (safety campaign). The wall is taken
+        only with evidence of obliquity: one of the two ranges closes faster than the speed along
+        its own sensor's axis explains (a corner's walls close at exactly those speeds), and it is
+        kept only ``oblique_keep_s`` unless the evidence renews it (a pillar's end face heard
+        obliquely on the way into a corner is such evidence once, and the wall fitted across
+        that corner must not outlive it)."""
+        if front is None or m.front_sonar is None:
+            return
+        h = math.radians(self.p.sonar_beam_half_angle_deg)
+        margin = self.p.oblique_evidence_m_s
+
+        def oblique(name: str, axis_speed: float) -> bool:
+            c = closing.get(name)
+            return c is not None and c > max(axis_speed, 0.0) + margin
+
+        front_oblique = oblique("front", est.vx_m_s)
+        for name, side, r, sign in (("left", left, m.left_sonar, 1.0), ("right", right, m.right_sonar, -1.0)):
+            if side is None or r is None:
+                continue
+            if not (front_oblique or oblique(name, sign * est.vy_m_s)):
+                continue
+            stamp = max(m.front_sonar.stamp_s, r.stamp_s)
+            if stamp == self._wall_stamps[name]:
+                continue
+            self._wall_stamps[name] = stamp
+            wall = oblique_wall(front, side, h)
+            if wall is not None:
+                phi, d = wall
+                self.memory.add(stamp, sign * phi, d, self._yaw, keep_s=self.p.oblique_keep_s)  # type: ignore[arg-type]
+
     def _remembered(self, now: float, name: str, axis_rad: float, r: RangeReading | None, d: float | None) -> float | None:
         """The sector's clearance ``d`` (from its sonar, brought to now), after storing a fresh
         echo in the obstacle memory, lowered to the nearest remembered surface facing it."""
@@ -361,6 +406,29 @@ class MAVStateUpdater:
         if mem is None:
             return d
         return mem if d is None else min(d, mem)
+
+
+class StuckCheck:
+    """A flow sensor that repeats its last speed bit for bit is stuck (a hung driver or bus
+    re-sending the last frame, freshly stamped), not a vehicle holding a speed: real flow carries
+    noise in its last bits. Repeats of a speed near zero are not judged (a quantised output over
+    a hover may repeat). Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made
+    the station keeping accelerate the vehicle to 2 m/s into a wall."""
+
+    def __init__(self, samples: int, min_m_s: float) -> None:
+        self.samples, self.min_m_s = samples, min_m_s
+        self._stamp: float | None = None
+        self._value: tuple[float, ...] | None = None
+        self._repeats = 0
+
+    def check(self, stamp_s: float, value: tuple[float, ...]) -> bool:
+        """True while the sensor is stuck; call with every reading (a repeated stamp is ignored)."""
+        if stamp_s != self._stamp:
+            self._stamp = stamp_s
+            same = value == self._value and max(abs(v) for v in value) >= self.min_m_s
+            self._repeats = self._repeats + 1 if same else 0
+            self._value = value
+        return self._repeats >= self.samples - 1
 
 
 _HALF_PI = 1.5707963267948966

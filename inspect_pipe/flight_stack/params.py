@@ -45,6 +45,17 @@ class EstimationParams:
     memory_keep_s: float = param(8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long (0: no memory)")
     memory_keep_travel_m: float = param(2.0, 0.1, 20.0, "m", "obstacle memory: or after this much travel (odometry drift)")
     memory_max_angle_deg: float = param(60.0, 0.0, 89.0, "deg", "obstacle memory: surfaces facing an axis within this angle count for it")
+    flow_stuck_samples: int = param(
+        5, 2, 100, "samples", "a flow sensor repeating the same non-zero speed bit for bit this many times is stuck"
+    )
+    flow_stuck_min_m_s: float = param(0.05, 0.0, 1.0, "m/s", "repeats of a speed below this are not taken as stuck (hover, quantisation)")
+    oblique_evidence_m_s: float = param(
+        0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique surface"
+    )
+    oblique_keep_s: float = param(1.0, 0.0, 30.0, "s", "a wall fitted to two oblique sonar readings is kept this long unless renewed")
+    sonar_beam_half_angle_deg: float = param(
+        15.0, 0.0, 40.0, "deg", "horizontal sonars: half-width of the beam (the reading is the nearest echo in it)"
+    )
     # Range observers: triple pole at -1.5 rad/s (k1 = 3L, k2 = 3L^2, k3 = L^3).
     observer_k1_1_s: float = param(4.5, 0.1, 50.0, "1/s", "range observer position gain")
     observer_k2_1_s2: float = param(6.75, 0.01, 500.0, "1/s^2", "range observer rate gain")
@@ -55,9 +66,9 @@ class EstimationParams:
 class BehaviorParams:
     attenuation_start_m: float = param(1.5, 0.5, 5.0, "m", "attenuated_go starts slowing here")
     safe_distance_m: float = param(1.0, 0.4, 4.0, "m", "minimum distance allowed to an obstacle")
-    response_time_s: float = param(0.35, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
+    response_time_s: float = param(0.3, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
-    repulsion_gain_1_s: float = param(1.2, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
+    repulsion_gain_1_s: float = param(1.6, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s")
     oblique_margin_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than its axis speed: oblique surface"
@@ -72,6 +83,9 @@ class BehaviorParams:
     )
     link_loss_hold_gain_1_s: float = param(
         2.5, 0.0, 10.0, "1/s", "waiting_for_connectivity: speed back to the held position per metre off it"
+    )
+    link_loss_rest_m_s: float = param(
+        0.1, 0.0, 1.0, "m/s", "waiting_for_connectivity: hover until the speed estimate is below this, then hold that point"
     )
     link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
     covered_half_angle_deg: float = param(15.0, 0.0, 45.0, "deg", "half-width of the sonar beams: motion within it of an axis is seen")
@@ -98,6 +112,12 @@ class ControlParams:
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
     speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2")
     speed_kd: float = param(0.0, 0.0, 5.0, "1")
+    speed_unwind_factor: float = param(
+        5.0, 1.0, 10.0, "1", "XY speed integrator: gain multiplier while it unwinds against a speed error "
+        "above speed_unwind_threshold_m_s during a hold (the trim a gust left behind)"
+    )
+    speed_unwind_threshold_m_s: float = param(0.08, 0.0, 1.0, "m/s")
+    speed_unwind_hold_m_s: float = param(0.05, 0.0, 1.0, "m/s", "fast unwinding only while the speed command is within this of 0")
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
     )

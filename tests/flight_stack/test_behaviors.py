@@ -136,7 +136,7 @@ def test_prevent_collision_bounds_only_the_speed_towards_the_obstacle():
 
 def test_prevent_collision_brakes_when_the_stop_would_breach_the_safe_distance():
     pc = PreventCollision(P)
-    # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.35 - 0.42 < 1 m, so brake now
+    # 1.4 m away at 1 m/s: the stop point is 1.4 - 0.3 - 0.42 < 1 m, so brake now
     assert pc.update(_in(front=1.4, vx=1.0), 0.02).vx_m_s == 0.0
     assert pc.update(_in(front=1.4, vx=0.1), 0.02) is None
 
@@ -147,7 +147,8 @@ def test_go_ahead_latches_releases_on_new_stick_and_on_obstacle():
     assert g.update(_in(SpeedCommand(), front=4.0, vx=0.4), 0.02).vx_m_s == 0.4  # stick released
     assert g.update(_in(SpeedCommand(0.0, 0.3), front=4.0, vx=0.4), 0.02) is None  # new desired speed
     g.update(_in(SpeedCommand(0.4), front=4.0, go=True), 0.02)
-    assert g.update(_in(SpeedCommand(), front=1.2, vx=0.4), 0.02) is None  # wall ahead
+    # wall ahead: 1.15 m at 0.4 m/s, the stop point 1.15 - 0.4 * 0.3 - 0.4^2 / 2.4 is inside 1 m
+    assert g.update(_in(SpeedCommand(), front=1.15, vx=0.4), 0.02) is None
 
 
 def test_limit_max_height_attracts_down_only_near_the_ceiling():
@@ -182,3 +183,21 @@ def test_mav_behaviors_toggles_inspection_mode_and_reports_contributors():
     assert out.command.vy_m_s == pytest.approx(0.2) and out.command.yaw_rate_rad_s == 0.0
     assert out.behaviors == ("prevent_collision", "attenuated_inspect")
     assert not out.land_request
+
+
+def test_waiting_for_connectivity_brakes_to_rest_then_holds_where_it_stopped():
+    import dataclasses
+
+    wfc = WaitingForConnectivity(P)
+    # GIVEN the link is lost while the vehicle still moves at 0.6 m/s (odometry at x = 2.0)
+    moving = _in(link=False, vx=0.6)
+    moving = dataclasses.replace(moving, estimate=dataclasses.replace(moving.estimate, odometry=(2.0, 0.0, 0.0)))
+    # THEN it commands a plain hover, it does not yet pick a point to hold
+    assert wfc.update(moving, 0.02).to_command().is_zero()
+    # WHEN it has braked to rest at x = 2.3 and is then pushed (a gust) to x = 2.4
+    rest = dataclasses.replace(moving, estimate=dataclasses.replace(moving.estimate, vx_m_s=0.02, odometry=(2.3, 0.0, 0.0)))
+    assert wfc.update(rest, 0.02).to_command().is_zero()
+    pushed = dataclasses.replace(rest, estimate=dataclasses.replace(rest.estimate, odometry=(2.4, 0.0, 0.0)))
+    v = wfc.update(pushed, 0.02)
+    # THEN it flies back towards the rest point, not towards where the loss was detected
+    assert v.vx_m_s == pytest.approx(-P.link_loss_hold_gain_1_s * 0.1)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import random
 
 import pytest
@@ -32,7 +34,11 @@ def test_table1_mode_from_sensor_set(bottom_px, bottom_tof, front_px, mode):
     assert select_mode(SensorStatus(bottom_px, bottom_tof, front_px)) == mode
 
 
-def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, vx=0.3, vy=-0.1, vz=0.05):
+def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, vx=0.3, vy=-0.1, vz=0.05, jitter: bool = True):
+    # A live flow sensor never repeats a speed bit for bit (a stuck one does): 0.1 mm/s of jitter.
+    if jitter:
+        e = 1e-4 * math.sin(977.0 * t)
+        vx, vy, vz = vx + e, vy - e, vz + e
     return Measurements(
         bottom_flow=BottomFlow(t, vx, vy, 200) if bottom else None,
         bottom_sonar=RangeReading(t, height) if bottom else None,
@@ -46,7 +52,7 @@ def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, 
 def test_mode1_uses_bottom_flow_horizontally_and_front_flow_vertically():
     est, clearance = MAVStateUpdater().update(1.0, _meas(1.0))
     assert est.mode == EstimationMode.BOTTOM_FRONT
-    assert (est.vx_m_s, est.vy_m_s, est.vz_m_s) == (0.3, -0.1, 0.05)
+    assert (est.vx_m_s, est.vy_m_s, est.vz_m_s) == pytest.approx((0.3, -0.1, 0.05), abs=1e-3)
     assert clearance.front_m is not None
 
 
@@ -67,7 +73,7 @@ def test_mode2_longitudinal_speed_is_the_front_range_derivative():
     # THEN vx comes from the range derivative, vy and vz from the front flow
     assert est.mode == EstimationMode.TOF_FRONT
     assert est.vx_m_s == pytest.approx(0.3, abs=0.02)
-    assert est.vy_m_s == pytest.approx(-0.09)
+    assert est.vy_m_s == pytest.approx(-0.09, abs=1e-3)
 
 
 @pytest.mark.parametrize("bottom_tof", [True, False])
@@ -119,3 +125,25 @@ def test_range_slope_fits_the_closing_rate_and_resets_on_gaps_and_missing_echoes
         s.add(1.0 + 0.1 * k, 2.0)
     assert s.rate(1.25) == pytest.approx(0.0)
     assert s.rate(2.0) is None  # samples too old
+
+
+def test_a_flow_repeating_its_speed_bit_for_bit_is_stuck_and_dropped():
+    def meas(t, bottom_vx, bottom_vy):
+        m = _meas(t)  # live (jittered) front flow and ranges
+        return dataclasses.replace(m, bottom_flow=BottomFlow(t, bottom_vx, bottom_vy, 200))
+
+    # GIVEN a bottom flow that repeats -0.43 m/s exactly, freshly stamped (a hung driver)
+    upd = MAVStateUpdater()
+    modes = [upd.update(1.0 + 0.02 * k, meas(1.0 + 0.02 * k, -0.43, 0.2))[0].mode for k in range(10)]
+    # THEN after flow_stuck_samples readings it is not used: mode 2 (front flow and ranges)
+    n = upd.p.flow_stuck_samples
+    assert modes[: n - 1] == [EstimationMode.BOTTOM_FRONT] * (n - 1)
+    assert modes[n - 1 :] == [EstimationMode.TOF_FRONT] * (10 - n + 1)
+    # AND a live flow (noise in the last bits) or a repeated zero over a hover is not stuck
+    rng = random.Random(1)
+    live, hover = MAVStateUpdater(), MAVStateUpdater()
+    for k in range(10):
+        t = 1.0 + 0.02 * k
+        m_live = live.update(t, meas(t, -0.43 + rng.gauss(0, 1e-3), 0.2 + rng.gauss(0, 1e-3)))[0].mode
+        m_hover = hover.update(t, meas(t, 0.0, 0.0))[0].mode
+    assert m_live == EstimationMode.BOTTOM_FRONT and m_hover == EstimationMode.BOTTOM_FRONT

@@ -44,3 +44,34 @@ def test_the_newest_echo_of_a_direction_replaces_the_older():
     m.add(0.0, 0.0, 1.0, 0.0)
     m.add(0.1, 0.0, 3.0, math.radians(3.0))  # same 10-degree bin: the obstacle has gone
     assert m.clearance(0.2, 0.0, 0.0) == pytest.approx(3.0, rel=1e-3)
+
+
+def test_oblique_wall_from_two_sonars_recovers_the_perpendicular_distance():
+    from inspect_pipe.flight_stack.obstacle_memory import oblique_wall
+
+    h = math.radians(15.0)
+    # GIVEN a wall 0.86 m away whose normal is 49 deg from the front axis (yawed at it): each
+    # beam's nearest echo is at (angle - 15 deg) off the normal
+    d, phi = 0.86, math.radians(49.0)
+    r_front, r_left = d / math.cos(phi - h), d / math.cos(math.pi / 2 - phi - h)
+    assert min(r_front, r_left) > 0.95  # either sonar alone says "outside the 1 m line"
+    # THEN the fit finds the wall's normal and its perpendicular distance
+    got = oblique_wall(r_front, r_left, h)
+    assert got is not None
+    assert got[0] == pytest.approx(phi) and got[1] == pytest.approx(d)
+    # AND an inside corner (walls face-on at 1.0 m and 1.1 m) gives a wall across it, nearer
+    # than both: the safe side of the ambiguity
+    corner = oblique_wall(1.0, 1.1, h)
+    assert corner is not None and corner[1] < 1.0
+    # AND readings no single wall can explain (a far front, a near side) give nothing
+    assert oblique_wall(5.0, 1.0, h) is None and oblique_wall(1.0, 5.0, h) is None
+
+
+def test_an_inferred_surface_is_kept_only_as_long_as_asked():
+    m = ObstacleMemory(keep_s=8.0, keep_travel_m=2.0)
+    m.advance(0.0, 0.0, 0.0, 0.0)
+    m.add(0.0, 0.0, 1.5, 0.0)  # heard: kept 8 s
+    m.add(0.0, math.pi / 2, 1.2, 0.0, keep_s=1.0)  # inferred: kept 1 s
+    assert m.clearance(0.9, math.pi / 2, 0.0) == pytest.approx(1.2)
+    assert m.clearance(1.1, math.pi / 2, 0.0) is None
+    assert m.clearance(1.1, 0.0, 0.0) == pytest.approx(1.5)

@@ -18,6 +18,11 @@ def attenuate(cmd: SpeedCommand, inputs: BehaviorInputs, p: BehaviorParams) -> S
     c = inputs.clearance
     vx = clamp(cmd.vx_m_s, p.max_speed_m_s)
     vy = clamp(cmd.vy_m_s, p.max_speed_m_s)
+    # Whether the motion is diagonal is decided on the operator's direction: the per-axis
+    # attenuation below turns a diagonal push towards the less attenuated axis (safety campaign:
+    # a 49 deg push into an inside corner became a 76 deg crawl, judged "seen by the left beam",
+    # into a pillar's corner that no beam had heard).
+    k = blind_direction_factor(vx, vy, inputs, p)
     vz = clamp(cmd.vz_m_s, p.max_vertical_speed_m_s)
     start, stop = p.attenuation_start_m, p.safe_distance_m
     if vx > 0.0:
@@ -28,7 +33,6 @@ def attenuate(cmd: SpeedCommand, inputs: BehaviorInputs, p: BehaviorParams) -> S
         vy = 0.0 if c.right_stale else vy * attenuation(c.right_m, start_m=start, stop_m=stop)
     if vz < 0.0:
         vz *= attenuation(c.down_m, start_m=p.floor_attenuation_start_m, stop_m=p.floor_clearance_m)
-    k = blind_direction_factor(vx, vy, inputs, p)
     return SpeedCommand(vx * k, vy * k, vz, cmd.yaw_rate_rad_s)
 
 

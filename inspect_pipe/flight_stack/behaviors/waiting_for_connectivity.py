@@ -1,10 +1,13 @@
 """waiting_for_connectivity: hold station while the link with the base station is lost.
 
-The paper's behaviour commands zero speed (hover). A speed loop told "zero" still coasts to a
-stop from the operator's last speed (about 0.45 m from 1 m/s) and gives way to a gust, so the
-vehicle here holds the odometry position where the loss was detected: a speed towards it of
-``link_loss_hold_gain_1_s`` per metre of error, at most ``link_loss_hold_max_m_s``. Without
-odometry (no heading from the autopilot) it is the paper's plain hover.
+The paper's behaviour commands zero speed (hover), and so does this one until the vehicle has
+braked to rest (estimated speed below ``link_loss_rest_m_s``). A speed loop told "zero" then
+gives way to a gust or to an estimator's slow error, so from there on the vehicle holds the
+odometry position where it came to rest: a speed towards it of ``link_loss_hold_gain_1_s`` per
+metre of error, at most ``link_loss_hold_max_m_s``. (Holding the point where the loss was
+detected instead flew the vehicle back over its own braking distance, 0.3 m from 0.8 m/s,
+with nobody at the stick.) Without odometry (no heading from the autopilot) it is the paper's
+plain hover.
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ class WaitingForConnectivity:
             return AxisVector.full(HOVER)
         x, y, yaw = odo
         if self._hold is None:
+            e = inputs.estimate
+            if math.hypot(e.vx_m_s, e.vy_m_s) >= self.p.link_loss_rest_m_s:
+                return AxisVector.full(HOVER)
             self._hold = (x, y)
         k, vmax = self.p.link_loss_hold_gain_1_s, self.p.link_loss_hold_max_m_s
         ex, ey = self._hold[0] - x, self._hold[1] - y
