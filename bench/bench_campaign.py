@@ -41,6 +41,6 @@ def run(data: Path) -> str:  # data: unused, the episodes are generated
             ep = next(c["episodes"] for c in cells if c)
             out.write(f"| collision-free, {subset} subset ({ep} episodes) | " + " | ".join(_f(c["collision_free"]) if c else "-" for c in cells) + " |\n")
     out.write("\nGoals for ours: " + "; ".join(
-        f"{k} {'met' if v.get('met') else 'NOT met'} ({_f(v.get('value'))})" for k, v in s["goals"].items()
+        f"{k} {'not measured' if v.get('met') is None else 'met' if v['met'] else 'NOT met'} ({_f(v.get('value'))})" for k, v in s["goals"].items()
     ) + ".\n")
     return out.getvalue()

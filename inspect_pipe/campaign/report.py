@@ -31,6 +31,10 @@ METRIC_ROWS = (  # (summary key, label): the table of report.html and of the ben
 )
 
 
+def _verdict(met: bool | None) -> str:
+    return "not measured (no baseline flown)" if met is None else ("met" if met else "NOT met")
+
+
 def fmt(v) -> str:
     if v is None:
         return "-"
@@ -89,7 +93,7 @@ def _write_html(summary: dict, shields: list[str], plots: list[tuple[str, str]],
         cells = "".join(f"<td>{fmt(summary['shields'][s].get(key))}</td>" for s in shields)
         rows.append(f"<tr><th>{html.escape(label)}</th>{cells}</tr>")
     goals = "".join(
-        f"<li>{html.escape(k)}: {fmt(v.get('value'))} (goal {fmt(v.get('goal'))}) - {'met' if v.get('met') else 'NOT met'}</li>"
+        f"<li>{html.escape(k)}: {fmt(v.get('value'))} (goal {fmt(v.get('goal'))}) - {_verdict(v.get('met'))}</li>"
         for k, v in summary.get("goals", {}).items()
     )
     imgs = "".join(f"<figure><img src='{p}'><figcaption>{html.escape(c)}</figcaption></figure>" for p, c in plots)

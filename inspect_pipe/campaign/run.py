@@ -169,6 +169,9 @@ def _goals(shields: dict) -> dict:
         others = [o for o in others if o is not None]
         g[f"ahead_on_{subset}"] = {
             "value": ours_cf, "baselines": others,
-            "met": ours_cf is not None and all(ours_cf >= o for o in others) and (not others or ours_cf > min(others) or ours_cf == 1.0),
+            # None: no baseline was flown (``--shields ours``), so "ahead" is not measured
+            "met": None if not others else (
+                ours_cf is not None and all(ours_cf >= o for o in others) and (ours_cf > min(others) or ours_cf == 1.0)
+            ),
         }
     return g

@@ -1,0 +1,102 @@
+"""The campaign's metric definitions on scripted ground truth (no flight): overshoot against
+lateral entries, link-loss braking against hover drift, and goals that cannot be judged."""
+
+from __future__ import annotations
+
+from inspect_pipe.campaign.generator import EpisodeSpec
+from inspect_pipe.campaign.metrics import EpisodeMonitor
+from inspect_pipe.campaign.run import _goals
+from inspect_pipe.flight.geometry import Clearances
+from inspect_pipe.flight.runner import TickRecord
+from inspect_pipe.flight_stack.flight_machine import FlightState
+from inspect_pipe.flight_stack.messages import AttitudeSetpoint, Clearance, EstimationMode, SpeedCommand, StateEstimate
+from inspect_pipe.flight_stack.onboard import TickOutput
+
+DT = 0.02
+
+
+def _spec(faults=()) -> EpisodeSpec:
+    doc = {
+        "format": "inspect_pipe.scenario/1", "name": "scripted", "duration_s": 30, "seed": 1,
+        "world": {"hold": {"length_m": 20, "width_m": 10, "height_m": 8}},
+        "vehicle": {"start": {"position": [5.0, 0.0, 0]}},
+        "operator": [{"t": 0.5, "button": "takeoff"}],
+        "faults": list(faults),
+    }
+    return EpisodeSpec(0, 1, "wall_push", doc, ("clean",))
+
+
+def _tick(t, *, x=5.0, y=0.0, vx=0.0, front=5.0, left=5.0, right=5.0, cmd=(0.0, 0.0), stick=(0.0, 0.0), link=True):
+    est = StateEstimate(1.5, 1.5, vx, 0.0, 0.0, EstimationMode.BOTTOM_FRONT)
+    out = TickOutput(
+        setpoint=AttitudeSetpoint(), estimate=est, clearance=Clearance(),
+        user_cmd=SpeedCommand(*stick), command=SpeedCommand(*cmd), behaviors=(),
+        fsm=FlightState.FLYING, inspection_mode=False,
+    )
+    return TickRecord(
+        t=t, pos_true=(x, y, 1.5), vel_true=(vx, 0.0, 0.0), yaw_true=0.0, out=out,
+        dist_true=Clearances(front, 5.0, left, right, 1.5), battery_percent=90.0, link_ok=link, collided=False,
+    )
+
+
+def _monitor(spec: EpisodeSpec) -> EpisodeMonitor:
+    return EpisodeMonitor(spec, spec.scenario(), "ours")
+
+
+def test_a_surface_met_inside_the_line_is_a_lateral_entry_not_an_overshoot():
+    m = _monitor(_spec())
+    # GIVEN the vehicle sliding along +y past the end of a box: the distance to its right jumps
+    # from 3 m to 0.85 m in one tick (the box's face comes into line), then it drifts 0.05 m closer
+    dists = [3.0] * 10 + [0.85] * 10 + [0.80] * 10
+    for k, d in enumerate(dists):
+        m(_tick(1.0 + k * DT, right=d))
+    r = m.finish(0.0)
+    # THEN only the 0.05 m it closed beyond where the face appeared is overshoot
+    assert abs(r.overshoot_m - 0.05) < 1e-9
+    assert abs(r.lateral_entry_m - 0.15) < 1e-9
+
+
+def test_an_approach_past_the_line_is_an_overshoot():
+    m = _monitor(_spec())
+    # GIVEN an approach that closes 2 cm per tick from 1.3 m down to 0.86 m
+    for k in range(23):
+        m(_tick(1.0 + k * DT, front=1.3 - 0.02 * k))
+    r = m.finish(0.0)
+    assert abs(r.overshoot_m - 0.14) < 1e-9 and r.lateral_entry_m is None
+
+
+def test_link_loss_braking_is_reported_apart_from_the_hover_drift():
+    spec = _spec([{"t": 2.0, "fault": "link_loss", "duration_s": 5.0}])
+    m = _monitor(spec)
+    t, x = 1.9, 5.0
+    # GIVEN flying at 0.8 m/s with the stick forward when the link drops at t = 2 s; the hover
+    # command comes at once; the vehicle brakes over 0.4 m, then creeps 0.1 m while hovering
+    while t < 7.5:
+        if t < 2.0:
+            v = 0.8
+        elif t < 3.0:
+            v = 0.8 * (3.0 - t)  # braking: 0.4 m
+        elif t < 5.0:
+            v = 0.05  # hovering, creeping: 0.1 m
+        else:
+            v = 0.0
+        x += v * DT
+        cmd = (0.8, 0.0) if t < 2.0 else (0.0, 0.0)
+        m(_tick(t, x=x, vx=v, cmd=cmd, stick=(0.8, 0.0), link=t < 2.0))
+        t += DT
+    r = m.finish(0.0)
+    assert r.link_hover_s and r.link_hover_s[0] <= 0.03
+    # THEN braking ~0.4 m (from the hover command until < 0.1 m/s) and drift ~0.1 m from rest
+    assert abs(r.link_brake_m[0] - 0.39) < 0.03
+    assert abs(r.link_drift_m[0] - 0.1) < 0.03
+
+
+def test_ahead_of_the_baselines_is_not_judged_without_baselines():
+    ours = {"collision_free": 1.0, "overshoot_max_m": 0.05, "link_loss_hover_s_max": 0.2,
+            "link_loss_drift_m_max": 0.1, "stuck_episodes": 0,
+            "subsets": {"dropout": {"collision_free": 1.0}, "link_loss": {"collision_free": 1.0}}}
+    g = _goals({"ours": ours})
+    assert g["ahead_on_dropout"]["met"] is None and g["ahead_on_link_loss"]["met"] is None
+    worse = dict(ours, subsets={"dropout": {"collision_free": 0.9}, "link_loss": {"collision_free": 1.0}})
+    g2 = _goals({"ours": worse, "px4_like": ours})
+    assert g2["ahead_on_dropout"]["met"] is False and g2["ahead_on_link_loss"]["met"] is True
