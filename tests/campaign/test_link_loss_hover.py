@@ -7,7 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import yaml
 
 from inspect_pipe.campaign.generator import generate_episode
 from inspect_pipe.campaign.run import fly_episode
@@ -19,14 +18,8 @@ CASES = [(1, 89, "campaign_link_loss_hover_e89.yaml")]
 
 
 @pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
-def test_regression_file_is_the_campaign_episode(seed, index, fname):
-    doc = yaml.safe_load((REGRESSIONS / fname).read_text())
-    gen = dict(generate_episode(seed, index).doc)
-    assert {k: v for k, v in doc.items() if k != "name"} == {k: v for k, v in gen.items() if k != "name"}
-
-
-@pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
 def test_link_loss_at_the_wall_hovers_within_0_3_s(seed, index, fname):
+    assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     # GIVEN the episode whose link loss came 2.02 s before a zero horizontal command
     # WHEN ours flies it THEN hover starts within 0.3 s and drifts less than 0.3 m
     r = fly_episode(generate_episode(seed, index), "ours")
@@ -45,14 +38,8 @@ DRIFT_CASES = [
 
 
 @pytest.mark.parametrize("seed,index,fname,before", DRIFT_CASES, ids=[c[2] for c in DRIFT_CASES])
-def test_drift_regression_file_is_the_campaign_episode(seed, index, fname, before):
-    doc = yaml.safe_load((REGRESSIONS / fname).read_text())
-    gen = dict(generate_episode(seed, index).doc)
-    assert {k: v for k, v in doc.items() if k != "name"} == {k: v for k, v in gen.items() if k != "name"}
-
-
-@pytest.mark.parametrize("seed,index,fname,before", DRIFT_CASES, ids=[c[2] for c in DRIFT_CASES])
 def test_link_loss_hover_drifts_less_than_0_3_m(seed, index, fname, before):
+    assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     # GIVEN a link loss with a stuck bottom flow, or while braking at a wall WHEN ours flies it
     # THEN, once at rest, the vehicle stays within 0.3 m (the goal) until the link is back
     r = fly_episode(generate_episode(seed, index), "ours")

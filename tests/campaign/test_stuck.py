@@ -7,7 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import yaml
 
 from inspect_pipe.campaign.generator import generate_episode
 from inspect_pipe.campaign.run import fly_episode
@@ -19,14 +18,8 @@ CASES = [(1, 182, "campaign_weak_thrust_stuck_e182.yaml"), (1, 15, "campaign_esc
 
 
 @pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
-def test_regression_file_is_the_campaign_episode(seed, index, fname):
-    doc = yaml.safe_load((REGRESSIONS / fname).read_text())
-    gen = dict(generate_episode(seed, index).doc)
-    assert {k: v for k, v in doc.items() if k != "name"} == {k: v for k, v in gen.items() if k != "name"}
-
-
-@pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
 def test_escape_from_the_wall_makes_progress(seed, index, fname):
+    assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided
     assert not r.stuck
