@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from inspect_pipe.flight import load_scenario, run_scenario
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater
 from inspect_pipe.flight_stack.messages import EstimationMode, ImuReading, Measurements
