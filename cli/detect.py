@@ -307,7 +307,7 @@ def train(
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz); onnx: the learned network (.onnx, needs the [train] extra).")] = Engine.saliency,
-    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: stop training after this many minutes.", min=1)] = 43.0,
+    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: stop training after this many minutes.", min=1)] = 85.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 

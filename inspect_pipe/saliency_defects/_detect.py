@@ -147,19 +147,25 @@ def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndar
     regions = []
     if len(ids) == 0:
         return regions
-    # mean probability of every component in one pass, in row bands (bounded temporaries on mosaics)
-    sums = np.zeros(stats.shape[0])
-    band = max(1, (1 << 20) // max(labels.shape[1], 1))
-    for y0 in range(0, labels.shape[0], band):
-        sums += np.bincount(labels[y0 : y0 + band].ravel(), weights=prob_u8[y0 : y0 + band].ravel(),
-                            minlength=stats.shape[0])
+    # mean probability of every component: inside each box when the boxes cover at most the image
+    # once, else in one pass over the image in row bands (bounded temporaries on mosaics)
+    boxes = int((stats[ids, cv2.CC_STAT_WIDTH].astype(np.int64) * stats[ids, cv2.CC_STAT_HEIGHT]).sum())
+    sums = None
+    if boxes > labels.size:
+        sums = np.zeros(stats.shape[0])
+        band = max(1, (1 << 20) // max(labels.shape[1], 1))
+        for y0 in range(0, labels.shape[0], band):
+            sums += np.bincount(labels[y0 : y0 + band].ravel(), weights=prob_u8[y0 : y0 + band].ravel(),
+                                minlength=stats.shape[0])
     for i in ids:
         x, y, w, h, area = (int(v) for v in stats[i])
-        roi = (labels[y : y + h, x : x + w] == i).astype(np.uint8)
+        inside = labels[y : y + h, x : x + w] == i
+        roi = inside.view(np.uint8)
         contours, _ = cv2.findContours(roi, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x, y))
         c = max(contours, key=cv2.contourArea)
         poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2).tolist()
-        conf = float(sums[i]) / (area * 255.0)
+        total = float(sums[i]) if sums is not None else float(prob_u8[y : y + h, x : x + w][inside].sum(dtype=np.int64))
+        conf = total / (area * 255.0)
         regions.append(Region(cls, tuple((a, b) for a, b in poly), area, conf, (x, y, w, h)))
     return regions
 

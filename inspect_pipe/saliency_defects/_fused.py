@@ -128,7 +128,7 @@ def fused_probabilities_u8(image: np.ndarray, model: FusedModel, kinds, *, tile_
     _check_kinds(model, kinds)
     _check(image)
     ps = class_probabilities_u8(image, model.saliency, kinds, tile_px=tile_px)
-    po = onnx_probabilities_u8(image, model.onnx, tile_px=tile_px)
+    po = onnx_probabilities_u8(image, model.onnx, kinds=kinds, tile_px=tile_px)
     return {k: fuse_u8(ps[k], po[k], model.weights[k]) for k in kinds}
 
 
@@ -150,7 +150,7 @@ def _val_maps(data: Path, cls: str, sal: DefectModel, onx: OnnxModel):
     out = []
     for it in items:
         img, gt = it.load()
-        out.append((class_probabilities_u8(img, sal, (cls,))[cls], onnx_probabilities_u8(img, onx)[cls], gt))
+        out.append((class_probabilities_u8(img, sal, (cls,))[cls], onnx_probabilities_u8(img, onx, kinds=(cls,))[cls], gt))
     return [it.stem for it in items], out
 
 

@@ -2,7 +2,8 @@
 inference with overlap, decisions and regions in the same form as the saliency engine.
 
 No PyTorch here: the network was trained and exported by ``_onnx_train`` and ships as
-``models/defects_unet_v1.onnx``.
+``models/defects_unet_v1.onnx``. Its output map is at 1/2 resolution (metadata ``output.stride``
+2; a model with stride 1 or none gives full-resolution maps) and is up-sampled here.
 """
 
 from __future__ import annotations
@@ -107,24 +108,47 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
 
 
 def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
-    """8-bit BGR or grey (H, W[, 1|3]) -> (3, H, W) float32 network input."""
+    """8-bit BGR or grey (H, W[, 1|3]) -> (3, H, W) float32 network input (channel by channel:
+    RGB * scale, then (x - mean) / std; equal to the whole-array formula)."""
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
-    rgb = np.repeat(image[:, :, None], 3, axis=2) if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     inp = meta["input"]
-    x = rgb.astype(np.float32) * np.float32(inp.get("scale", 1 / 255))
-    x = (x - np.asarray(inp["mean"], np.float32)) / np.asarray(inp["std"], np.float32)
-    return np.ascontiguousarray(x.transpose(2, 0, 1))
+    chans = [image] * 3 if image.ndim == 2 else [image[:, :, 2], image[:, :, 1], image[:, :, 0]]  # BGR -> RGB
+    scale = np.float32(inp.get("scale", 1 / 255))
+    out = np.empty((3,) + image.shape[:2], np.float32)
+    for c in range(3):
+        np.multiply(chans[c], scale, out=out[c], dtype=np.float32)
+        out[c] -= np.float32(inp["mean"][c])
+        out[c] /= np.float32(inp["std"][c])
+    return out
+
+
+def _stride(model: OnnxModel) -> int:
+    """Output stride of the network (1: full-resolution output; 2: the map is at 1/2 resolution
+    and is up-sampled bilinearly here, half-pixel centres, as the training graph does)."""
+    return int(model.meta.get("output", {}).get("stride", 1))
 
 
 def _run(model: OnnxModel, xs: np.ndarray) -> np.ndarray:
-    """(N, 3, H, W) input of any H, W -> (N, C, H, W) probabilities (reflect-padded to 16)."""
+    """(N, 3, H, W) input of any H, W -> (N, C, h, w) probabilities at the network's output
+    resolution (h = ceil(H / 16) * 16 / stride; the caller up-samples and crops with
+    :func:`_full_u8`)."""
     _, _, h, w = xs.shape
     ph, pw = (-h) % MULTIPLE_OF, (-w) % MULTIPLE_OF
     if ph or pw:
         xs = np.pad(xs, ((0, 0), (0, 0), (0, ph), (0, pw)), mode="reflect")
     name = model.session.get_inputs()[0].name
-    return model.session.run(None, {name: xs})[0][:, :, :h, :w]
+    return model.session.run(None, {name: xs})[0]
+
+
+def _full_u8(p: np.ndarray, stride: int, h: int, w: int) -> np.ndarray:
+    """One class's output map (float 0..1 at the output resolution) -> (h, w) uint8 at the
+    input resolution: rounded to 0..255, up-sampled bilinearly by ``stride`` (cv2 and the
+    training graph's bilinear up-sampling agree to within one grey level), cropped."""
+    q = _u8(p)
+    if stride != 1:
+        q = cv2.resize(q, (q.shape[1] * stride, q.shape[0] * stride), interpolation=cv2.INTER_LINEAR)
+    return q[:h, :w]
 
 
 def _u8(p: np.ndarray) -> np.ndarray:
@@ -139,37 +163,51 @@ def _check(image: np.ndarray) -> None:
 
 
 def onnx_probabilities_u8(
-    image: np.ndarray, model: OnnxModel, *, tile_px: int = TILE_PX, margin_px: int = MARGIN_PX,
+    image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX, margin_px: int = MARGIN_PX,
     whole_max_px: int = WHOLE_MAX_PX,
 ) -> dict[str, np.ndarray]:
-    """Per-class probability maps (H, W) uint8 of one image. Images above ``whole_max_px`` pixels
-    run in tiles of ``tile_px`` with ``margin_px`` overlap on each side (tile origins on the
-    16 px grid), so memory is bounded by the tile size."""
+    """Per-class probability maps (H, W) uint8 of one image (the classes ``kinds``, default all
+    of the model's). Images above ``whole_max_px`` pixels run in tiles of ``tile_px`` with
+    ``margin_px`` overlap on each side (tile origins on the 16 px grid), so memory is bounded by
+    the tile size."""
     _check(image)
     if tile_px % MULTIPLE_OF or margin_px % MULTIPLE_OF:
         raise ValueError(f"tile and margin must be multiples of {MULTIPLE_OF} px")
+    want = [(i, k) for i, k in enumerate(model.classes) if kinds is None or k in kinds]
     h, w = image.shape[:2]
+    s = _stride(model)
     if h * w <= whole_max_px:
         p = _run(model, _prepare(image, model.meta)[None])[0]
-        return {k: _u8(p[i]) for i, k in enumerate(model.classes)}
-    out = {k: np.zeros((h, w), np.uint8) for k in model.classes}
+        return {k: _full_u8(p[i], s, h, w) for i, k in want}
+    out = {k: np.zeros((h, w), np.uint8) for _, k in want}
     for y0 in range(0, h, tile_px):
         for x0 in range(0, w, tile_px):
             y1, x1 = min(y0 + tile_px, h), min(x0 + tile_px, w)
             ty0, tx0 = max(y0 - margin_px, 0), max(x0 - margin_px, 0)
             ty1, tx1 = min(y1 + margin_px, h), min(x1 + margin_px, w)
             p = _run(model, _prepare(np.ascontiguousarray(image[ty0:ty1, tx0:tx1]), model.meta)[None])[0]
-            for i, k in enumerate(model.classes):
-                out[k][y0:y1, x0:x1] = _u8(p[i, y0 - ty0:y1 - ty0, x0 - tx0:x1 - tx0])
+            for i, k in want:
+                q = _full_u8(p[i], s, ty1 - ty0, tx1 - tx0)
+                out[k][y0:y1, x0:x1] = q[y0 - ty0:y1 - ty0, x0 - tx0:x1 - tx0]
     return out
 
 
 def _decide(prob_u8: np.ndarray, threshold_u8: int, min_area_px: int):
-    _, labels, stats, _ = cv2.connectedComponentsWithStats((prob_u8 >= threshold_u8).astype(np.uint8), connectivity=8,
-                                                           ltype=cv2.CV_32S)
+    """(mask of prob >= threshold without components below min_area_px, labels, stats, kept ids).
+    Few small components are cleared inside their boxes; many, with one look-up of the labels."""
+    binary = cv2.threshold(np.ascontiguousarray(prob_u8, np.uint8), int(threshold_u8) - 1, 1, cv2.THRESH_BINARY)[1]
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
     keep[0] = False
-    return keep[labels], labels, stats, np.flatnonzero(keep)
+    drop = np.flatnonzero(~keep[1:]) + 1
+    if len(drop) > 64:
+        return keep[labels], labels, stats, np.flatnonzero(keep)
+    mask = binary.view(bool)
+    for i in drop:
+        x, y, w, h = (int(v) for v in stats[i, :4])
+        box = mask[y:y + h, x:x + w]
+        box[labels[y:y + h, x:x + w] == i] = False
+    return mask, labels, stats, np.flatnonzero(keep)
 
 
 def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds) -> Detection:
@@ -196,7 +234,7 @@ def detect_onnx(image: np.ndarray, model: OnnxModel, *, kinds=("corrosion", "cra
     """Like :func:`detect` of the saliency engine, with the learned network. Grey images are
     accepted for every class (replicated to RGB). Raises ValueError for an unusable image."""
     _check_kinds(model, kinds)
-    return _detection(onnx_probabilities_u8(image, model, tile_px=tile_px), model, kinds)
+    return _detection(onnx_probabilities_u8(image, model, kinds=kinds, tile_px=tile_px), model, kinds)
 
 
 def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("corrosion", "crack"),
@@ -217,8 +255,10 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
         for s in range(0, len(idx), batch):
             part = idx[s:s + batch]
             p = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]))
+            h, w = images[part[0]].shape[:2]
             for j, i in enumerate(part):
-                out[i] = _detection({k: _u8(p[j, c]) for c, k in enumerate(model.classes)}, model, kinds)
+                out[i] = _detection({k: _full_u8(p[j, c], _stride(model), h, w) for c, k in enumerate(model.classes)
+                                     if k in kinds}, model, kinds)
     return out  # type: ignore[return-value]
 
 

@@ -3,9 +3,10 @@
 Only ``inspect-pipe detect train --engine onnx`` and ``tools/train_onnx.py`` import this module;
 inference (``_onnx_detect``) needs onnxruntime only. Install with ``pip install -e .[train]``.
 
-Network: a compact U-Net (4 poolings, widths 8-16-32-64-96, bilinear up-sampling + one 3x3
-convolution per decoder level, about 0.34 M parameters), RGB in, one sigmoid map per class out
-(corrosion, crack, surface). Each data set labels one class only, so the loss of a sample is taken
+Network: a half-resolution U-Net (``build_net``: stride-2 stem, levels at 1/2, 1/4, 1/8, 1/16 of
+widths 16-32-64-128, depthwise-separable blocks at 1/2 and 1/4, about 0.34 M parameters; the
+sigmoid map comes out at 1/2 resolution and is up-sampled bilinearly, inside the training graph
+and by the inference after export), RGB in, one map per class out (corrosion, crack, surface). Each data set labels one class only, so the loss of a sample is taken
 on its own class's channel (the other channels are not supervised by that sample).
 
 Data: the 'train' part of each set (``_datasets.split_of``); of it, the images with
@@ -53,39 +54,63 @@ class OnnxTrainConfig:
     seed: int = 0
     crop_px: int = 128
     per_class_batch: int = 4  # crops of each class per step
-    max_steps: int = 1000
+    max_steps: int = 24000  # about 60 min on one core of the 2-core development machine
     lr: float = 3e-3
     weight_decay: float = 1e-4
-    val_every: int = 120
-    patience: int = 3  # validations without improvement before stopping
-    time_budget_s: float = 36 * 60  # the cosine schedule ends at max_steps or here, whichever first
-    threads: int = 2
+    val_every: int = 500
+    patience: int = 6  # validations without improvement before stopping
+    time_budget_s: float = 85 * 60  # the cosine schedule ends at max_steps or here, whichever first
+    threads: int = 1  # one thread: the run is step-for-step reproducible and leaves a core free
     crack_centre_p: float = 0.6  # share of crack crops centred on a crack pixel
-    widths: tuple[int, ...] = (8, 16, 32, 64, 96)
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    dw_levels: int = 2  # levels (from the 1/2-res one) with depthwise-separable blocks
 
 
 # ----------------------------------------------------------------------------- network
 
 
-def build_net(widths=(8, 16, 32, 64, 96), n_out: int = len(CLASSES)):
+def build_net(widths=(16, 32, 64, 128), n_out: int = len(CLASSES), dw_levels: int = 2):
+    """Half-resolution U-Net: a stride-2 3x3 stem (no convolution at full resolution), one
+    encoder level per width at 1/2, 1/4, 1/8, 1/16 (max-pooling between levels), a decoder back
+    to 1/2 with skip connections, 1x1 logits at 1/2 resolution, bilinear x2 up-sampling of the
+    logits and the sigmoid inside the graph (the output has the input's size). Levels below
+    ``dw_levels`` use depthwise-separable blocks (depthwise 3x3 + pointwise 1x1), deeper ones
+    full 3x3 convolutions."""
     import torch
     from torch import nn
 
-    def block(cin, cout, n=2):
+    def cbr(cin, cout, k=3, stride=1, groups=1):
+        return [nn.Conv2d(cin, cout, k, stride=stride, padding=k // 2, groups=groups, bias=False),
+                nn.BatchNorm2d(cout), nn.ReLU(inplace=True)]
+
+    def block(cin, cout, dw, n=2):
         layers = []
         for i in range(n):
-            layers += [nn.Conv2d(cin if i == 0 else cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)]
+            c = cin if i == 0 else cout
+            layers += (cbr(c, c, 3, groups=c) + cbr(c, cout, 1)) if dw else cbr(c, cout, 3)
         return nn.Sequential(*layers)
 
-    class UNet(nn.Module):
+    class HalfUNet(nn.Module):
         def __init__(self):
             super().__init__()
             w = widths
-            self.enc = nn.ModuleList([block(3, w[0])] + [block(w[i - 1], w[i]) for i in range(1, len(w))])
-            self.dec = nn.ModuleList([block(w[i + 1] + w[i], w[i], n=1) for i in range(len(w) - 1)])
+            self.stem = nn.Sequential(*cbr(3, w[0], 3, stride=2))
+            self.enc = nn.ModuleList([block(w[0], w[0], True, n=1)]
+                                     + [block(w[i - 1], w[i], i < dw_levels) for i in range(1, len(w))])
+            self.dec = nn.ModuleList([nn.Sequential(*cbr(w[i + 1] + w[i], w[i], 1), *block(w[i], w[i], i < dw_levels, n=1))
+                                      for i in range(len(w) - 1)])
             self.head = nn.Conv2d(w[0], n_out, 1)
+            self.full_output = True  # False for the export: the inference up-samples the 1/2-res map
+
+        def _decode(self, d, x, skip):
+            """One decoder level: bilinear x2 of ``x``, concatenated with ``skip``, 1x1 conv + BN +
+            ReLU, then a block. (Splitting the 1x1 conv to avoid the concatenation was tried: slower
+            in onnxruntime, whose blocked-layout Resize it breaks.)"""
+            x = nn.functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            return d(torch.cat([x, skip], 1))
 
         def forward(self, x):
+            x = self.stem(x)
             skips = []
             for i, e in enumerate(self.enc):
                 x = e(x)
@@ -93,11 +118,13 @@ def build_net(widths=(8, 16, 32, 64, 96), n_out: int = len(CLASSES)):
                     skips.append(x)
                     x = nn.functional.max_pool2d(x, 2)
             for i in reversed(range(len(self.dec))):
-                x = nn.functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
-                x = self.dec[i](torch.cat([x, skips[i]], 1))
-            return torch.sigmoid(self.head(x))
+                x = self._decode(self.dec[i], x, skips[i])
+            p = torch.sigmoid(self.head(x))
+            if self.full_output:
+                p = nn.functional.interpolate(p, scale_factor=2.0, mode="bilinear", align_corners=False)
+            return p
 
-    return UNet()
+    return HalfUNet()
 
 
 # ----------------------------------------------------------------------------- data
@@ -245,7 +272,7 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     train_items, val_items, record = load_parts(root)
     log("data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
         + f" ({time.monotonic() - t0:.0f} s)")
-    net = build_net(cfg.widths)
+    net = build_net(cfg.widths, dw_levels=cfg.dw_levels)
     n_par = sum(p.numel() for p in net.parameters())
     log(f"net: {n_par} parameters")
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -323,9 +350,10 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
 
     ck = torch.load(ckpt, weights_only=False)
     cfg = ck["config"]
-    net = build_net(tuple(cfg["widths"]))
+    net = build_net(tuple(cfg["widths"]), dw_levels=cfg["dw_levels"])
     net.load_state_dict(ck["state"])
     net.eval()
+    net.full_output = False  # the graph ends at the 1/2-res sigmoid map; the inference up-samples it
     dummy = torch.zeros(1, 3, 64, 64)
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.onnx.export(
@@ -341,7 +369,8 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
         "input": {"name": "image", "layout": "NCHW", "channels": "RGB", "scale": 1 / 255,
                   "mean": list(INPUT_MEAN), "std": list(INPUT_STD), "multiple_of": MULTIPLE_OF,
                   "min_side_px": MIN_SIDE_PX, "grey": "replicated to 3 channels"},
-        "output": {"name": "prob", "meaning": "P(defect of class c), sigmoid, one channel per class"},
+        "output": {"name": "prob", "meaning": "P(defect of class c), sigmoid, one channel per class", "stride": 2,
+                   "upsampling": "bilinear x2, half-pixel centres (the training graph's), of the uint8 map"},
         "operating_points_u8": {c: r["threshold_u8"] for c, r in best["val"].items()},
         "min_area_px": dict(MIN_AREA_PX),
         "data": ck["record"],
@@ -354,6 +383,6 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
     del m.metadata_props[:]
     p = m.metadata_props.add()
     p.key, p.value = "inspect_pipe", json.dumps(meta)
-    m.doc_string = "inspect_pipe learned defect segmentation (compact U-Net); see metadata 'inspect_pipe'"
+    m.doc_string = "inspect_pipe learned defect segmentation (half-resolution U-Net); see metadata 'inspect_pipe'"
     onnx.save(m, str(out))
     log(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")

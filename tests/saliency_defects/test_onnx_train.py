@@ -33,6 +33,28 @@ def test_network_is_compact_and_keeps_the_input_size():
     assert y.shape == (2, len(od.CLASSES), 64, 96) and float(y.min()) >= 0 and float(y.max()) <= 1
 
 
+def test_no_convolution_runs_at_full_resolution():
+    # GIVEN the default network
+    net = ot.build_net()
+    convs = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+    # WHEN a 64 x 96 input goes through it, recording the input size of every convolution
+    seen = []
+    hooks = [c.register_forward_hook(lambda m, i, o: seen.append((m.stride, i[0].shape[-2:]))) for c in convs]
+    net.eval()
+    with torch.no_grad():
+        net(torch.zeros(1, 3, 64, 96))
+    for h in hooks:
+        h.remove()
+    # THEN only the stride-2 stem sees the full-resolution input, every other convolution runs at 1/2 or less
+    full = [s for s, hw in seen if tuple(hw) == (64, 96)]
+    assert full == [(2, 2)], full
+    assert all(hw[0] <= 32 for s, hw in seen[1:])
+    # and the export graph (full_output off) ends at the 1/2-resolution map
+    net.full_output = False
+    with torch.no_grad():
+        assert net(torch.zeros(1, 3, 64, 96)).shape == (1, len(od.CLASSES), 32, 48)
+
+
 def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path):
     torch.manual_seed(1)
     net = ot.build_net()
@@ -48,6 +70,7 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
     m = od.load_onnx_model(out)
     assert m.version == "test" and m.classes == od.CLASSES
     assert m.thresholds_u8 == {"corrosion": 100, "crack": 101, "surface": 102}
+    assert m.meta["output"]["stride"] == 2 and od._stride(m) == 2
     rng = np.random.default_rng(0)
     img = rng.integers(0, 256, (75, 109, 3), dtype=np.uint8)  # not a multiple of 16 on purpose
     got = od.onnx_probabilities_u8(img, m)
@@ -55,7 +78,9 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
     with torch.no_grad():
         xp = np.pad(x, ((0, 0), (0, 5), (0, 3)), mode="reflect")[None]  # to 80 x 112
         ref = net(torch.from_numpy(np.ascontiguousarray(xp)))[0].numpy()[:, :75, :109]
+    # the torch network up-samples in float, the inference the uint8 map with cv2: one grey level apart at most
     for i, c in enumerate(od.CLASSES):
+        assert got[c].shape == (75, 109)
         assert np.abs(got[c].astype(int) - od._u8(ref[i]).astype(int)).max() <= 1
 
 
