@@ -17,7 +17,12 @@ Definitions (all distances from the vehicle's centre unless said otherwise):
 * dithering: sign changes of the speed along a wall's normal (hysteresis 0.03 m/s) while the
   operator pushes into that wall within 1.3 m of it;
 * stuck: an escape the operator asked for (sideways out of a corner or along a wall) made less
-  than 0.3 m of progress, with no fault active meanwhile;
+  than 0.3 m of progress, with no fault active meanwhile. An escape that the hold's geometry
+  does not allow is not judged: if straight along its direction, within its required progress,
+  the vehicle's centre would come closer than ``STOP_LINE_M`` - 0.05 m to a wall or box (and
+  closer than where it started), a shield that honours the stop line cannot make it (e.g. the
+  stick pushes into the end of a pillar 1.07 m away); such escapes are counted as
+  ``escapes_blocked``;
 * stale-sector block time: from the start of a blackout of the sensor that sees the sector the
   operator pushes into, until the command into that sector is <= 0.05 m/s (never: the blackout's
   duration, counted as unblocked);
@@ -68,6 +73,7 @@ class EpisodeResult:
     dither_changes: int = 0
     dither_held_s: float = 0.0
     stuck: bool = False
+    escapes_blocked: int = 0
     stale_block_s: list[float] = field(default_factory=list)
     stale_unblocked: int = 0
     link_hover_s: list[float] = field(default_factory=list)
@@ -137,7 +143,7 @@ class EpisodeMonitor:
         if flying:
             self._dither(rec, stick_w, (d.front, d.left, d.right))
             self._stale_sectors(t, stick_w, cmd_w)
-            self._escapes(t, x, y)
+            self._escapes(t, x, y, z)
             self._floor_steps(t, z, d.down, u.vz_m_s)
         if out.fsm is not FlightState.LANDED:
             self._link_loss(t, rec, stick_w)  # a failsafe may land: hovering ends when x, y stop
@@ -218,10 +224,24 @@ class EpisodeMonitor:
                     r0 = st["rest"]
                     st["drift"] = max(st["drift"], math.hypot(p[0] - r0[0], p[1] - r0[1]))
 
-    def _escapes(self, t, x, y) -> None:
+    def _escape_possible(self, x, y, z, e) -> bool:
+        d0 = self.geo.side_distance(x, y, z)
+        floor = min(d0, STOP_LINE_M) - 0.05
+        n = max(1, int(math.ceil(e.min_progress_m / 0.05)))
+        for k in range(1, n + 1):
+            s = e.min_progress_m * k / n
+            if self.geo.side_distance(x + s * e.direction[0], y + s * e.direction[1], z) < floor:
+                return False
+        return True
+
+    def _escapes(self, t, x, y, z) -> None:
         for i, e in enumerate(self.spec.escapes):
             if e.t0_s <= t <= e.t1_s:
-                self._escape_start.setdefault(i, (x, y))
+                if i not in self._escape_start:
+                    self._escape_start[i] = (x, y)
+                    if not self._escape_possible(x, y, z, e):
+                        self._escape_bad.add(i)
+                        self.res.escapes_blocked += 1
                 if self._fault_recent(t, 0.5):
                     self._escape_bad.add(i)
             elif t > e.t1_s and i in self._escape_start and i not in self._escape_bad:
@@ -303,6 +323,7 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "dither_changes_per_10s_median": _rnd(_pct(dither, 0.5)),
         "dither_changes_per_10s_max": _rnd(max(dither)) if dither else None,
         "stuck_episodes": sum(r.stuck for r in results),
+        "escapes_blocked": sum(r.escapes_blocked for r in results),
         "stale_block_s_median": _rnd(_pct(stale, 0.5)),
         "stale_block_s_max": _rnd(max(stale)) if stale else None,
         "stale_unblocked": sum(r.stale_unblocked for r in results),

@@ -21,6 +21,7 @@ METRIC_ROWS = (  # (summary key, label): the table of report.html and of the ben
     ("lateral_entry_episodes", "episodes meeting a surface inside the line"),
     ("dither_changes_per_10s_max", "dithering at the wall, max sign changes / 10 s"),
     ("stuck_episodes", "episodes stuck in corners"),
+    ("escapes_blocked", "scripted escapes the geometry does not allow (not judged)"),
     ("stale_block_s_max", "time to block a stale sector, max (s)"),
     ("stale_unblocked", "stale-sector pushes never blocked"),
     ("link_loss_hover_s_max", "hover after link loss, max (s)"),

@@ -67,7 +67,10 @@ class FlightController:
         self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
         self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
         vlim = p.vertical_integral_limit_m_s2
-        self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim)
+        self.pid_vz = PID(
+            p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
+            unwind_factor=p.speed_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
+        )
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
         self.vertical_mode = VerticalMode.SPEED
@@ -93,6 +96,7 @@ class FlightController:
         freeze_integrators: bool = False,
         freeze_xy_integrators: bool = False,
         thrust_cap_frac: float = 1.0,
+        unwind_vertical: bool = False,
     ) -> AttitudeSetpoint:
         p = self.p
         freeze_xy = freeze_integrators or freeze_xy_integrators
@@ -139,7 +143,7 @@ class FlightController:
                 lim = self.pid_vz.integral_limit
                 self.pid_vz.reset(max(-lim, min(lim, self._last_az)))
             self.height_ref_m = None
-            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators)
+            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators, unwind=unwind_vertical)
             trim = self.pid_vz.integral
         self.vertical_mode = mode
 

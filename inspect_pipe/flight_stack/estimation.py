@@ -10,6 +10,7 @@ descend.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -206,7 +207,15 @@ class MAVStateUpdater:
         self._yaw: float | None = None  # last heading the autopilot reported
         self._memory_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._wall_stamps = {"left": -1.0, "right": -1.0}
-        self._stuck = {k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_min_m_s) for k in ("bottom", "front")}
+        self._stuck = {
+            k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_min_m_s, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")
+        }
+        # Horizontal sonars: a range is never "moving" by itself; stuck once the vehicle's own
+        # speed along the axis says it should have changed.
+        self._range_stuck = {
+            k: StuckCheck(p.sonar_stuck_samples, math.inf, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
+        }
+        self._v_prev = (0.0, 0.0)  # last horizontal speed estimate (the stuck-sonar check runs first)
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
 
@@ -217,8 +226,10 @@ class MAVStateUpdater:
         bf, ff = m.bottom_flow, m.front_flow
         b_flow = bf is not None and now - bf.stamp_s <= p.flow_timeout_s and bf.quality >= p.flow_min_quality
         f_flow = ff is not None and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
-        b_flow = b_flow and not self._stuck["bottom"].check(bf.stamp_s, (bf.vx_m_s, bf.vy_m_s))  # type: ignore[union-attr]
-        f_flow = f_flow and not self._stuck["front"].check(ff.stamp_s, (ff.vy_m_s, ff.vz_m_s))  # type: ignore[union-attr]
+        imu = m.imu
+        ax, ay, az = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else (0.0, 0.0, 0.0)
+        b_flow = b_flow and not self._stuck["bottom"].check(bf.stamp_s, (bf.vx_m_s, bf.vy_m_s), (ax, ay))  # type: ignore[union-attr]
+        f_flow = f_flow and not self._stuck["front"].check(ff.stamp_s, (ff.vy_m_s, ff.vz_m_s), (ay, az))  # type: ignore[union-attr]
         return SensorStatus(
             bottom_px=b_flow and b_sonar,
             bottom_tof=_fresh_range(m.bottom_tof, now, p.tof_timeout_s, p.tof_max_range_m),
@@ -227,6 +238,7 @@ class MAVStateUpdater:
 
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
         p = self.p
+        m = self._drop_stuck_sonars(m)
         status = self.status(now, m)
         mode = select_mode(status)
         imu = m.imu
@@ -297,6 +309,7 @@ class MAVStateUpdater:
             vz = vz_flow if vz_flow is not None else self.height.rate_m_s
             self._dr_vz = vz
 
+        self._v_prev = (vx, vy)
         est = StateEstimate(
             height_m=self.height.height_m,
             altitude_m=self.height.altitude_m,
@@ -356,6 +369,19 @@ class MAVStateUpdater:
             right_closing_m_s=closing["right"],
         )
 
+    def _drop_stuck_sonars(self, m: Measurements) -> Measurements:
+        """A horizontal sonar repeating its range bit for bit while the vehicle has moved along
+        its axis by more than ``sonar_stuck_travel_m`` is stuck: its readings count as missing (a
+        silent sector: no user motion into it) until they change. Safety campaign: a left sonar
+        stuck at 1.65 m while the operator pushed at 0.77 m/s towards the wall; the stop came when
+        it recovered, 0.15 m inside the line."""
+        vx, vy = self._v_prev
+        drop = {}
+        for name, r, speed in (("front", m.front_sonar, vx), ("left", m.left_sonar, vy), ("right", m.right_sonar, -vy)):
+            if r is not None and r.range_m is not None and self._range_stuck[name].check(r.stamp_s, (r.range_m,), (speed,)):
+                drop[f"{name}_sonar"] = None
+        return dataclasses.replace(m, **drop) if drop else m
+
     def _oblique_walls(
         self, m: Measurements, est: StateEstimate, closing: dict[str, float | None],
         front: float | None, left: float | None, right: float | None,
@@ -409,26 +435,38 @@ class MAVStateUpdater:
 
 
 class StuckCheck:
-    """A flow sensor that repeats its last speed bit for bit is stuck (a hung driver or bus
-    re-sending the last frame, freshly stamped), not a vehicle holding a speed: real flow carries
-    noise in its last bits. Repeats of a speed near zero are not judged (a quantised output over
-    a hover may repeat). Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made
-    the station keeping accelerate the vehicle to 2 m/s into a wall."""
+    """A sensor that repeats its last value bit for bit is stuck (a hung driver or bus re-sending
+    the last frame, freshly stamped), not a vehicle holding a speed: real flow carries noise in
+    its last bits. A repeated value below ``min_m_s`` (a quantised flow output over a hover may
+    repeat; a range always) is judged stuck only once another sensor says it should have changed:
+    the integral of ``rates`` since the repeats began (flow: the IMU's acceleration; range: the
+    speed along the sensor's axis) exceeds ``imu_dv_m_s``. Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made the
+    station keeping accelerate the vehicle to 2 m/s into a wall; a front flow stuck at +0.03 m/s
+    vertical during a landing let the descent speed up to 1.5 m/s into the floor."""
 
-    def __init__(self, samples: int, min_m_s: float) -> None:
-        self.samples, self.min_m_s = samples, min_m_s
+    def __init__(self, samples: int, min_m_s: float, imu_dv_m_s: float) -> None:
+        self.samples, self.min_m_s, self.imu_dv_m_s = samples, min_m_s, imu_dv_m_s
         self._stamp: float | None = None
         self._value: tuple[float, ...] | None = None
         self._repeats = 0
+        self._dv: list[float] = []  # IMU speed change since the repeats began, per component
 
-    def check(self, stamp_s: float, value: tuple[float, ...]) -> bool:
-        """True while the sensor is stuck; call with every reading (a repeated stamp is ignored)."""
+    def check(self, stamp_s: float, value: tuple[float, ...], rates: tuple[float, ...]) -> bool:
+        """True while the sensor is stuck; call with every reading and the rates of change that
+        other sensors give for its components (a repeated stamp is ignored)."""
         if stamp_s != self._stamp:
-            self._stamp = stamp_s
-            same = value == self._value and max(abs(v) for v in value) >= self.min_m_s
-            self._repeats = self._repeats + 1 if same else 0
-            self._value = value
-        return self._repeats >= self.samples - 1
+            if value == self._value and self._stamp is not None:
+                self._repeats += 1
+                dt = stamp_s - self._stamp
+                self._dv = [dv + a * dt for dv, a in zip(self._dv, rates)]
+            else:
+                self._repeats = 0
+                self._dv = [0.0] * len(value)
+            self._stamp, self._value = stamp_s, value
+        if self._repeats < self.samples - 1:
+            return False
+        moving = max(abs(v) for v in self._value) >= self.min_m_s  # type: ignore[arg-type]
+        return moving or max(abs(dv) for dv in self._dv) > self.imu_dv_m_s
 
 
 _HALF_PI = 1.5707963267948966

@@ -50,6 +50,7 @@ class FlightMachine:
         self.high_thrust_s = 0.0
         self.touchdown_s: float | None = None
         self._ground_s = 0.0  # how long the landing has looked like the ground
+        self._bounced = False  # a touchdown of this landing was cancelled: the vehicle bounced
 
     def _go(self, state: FlightState, now: float) -> None:
         self.state = state
@@ -57,6 +58,7 @@ class FlightMachine:
         self.high_thrust_s = 0.0
         self.touchdown_s = None
         self._ground_s = 0.0
+        self._bounced = False
 
     def time_in_state(self, now: float) -> float:
         return now - self.entered_s
@@ -104,7 +106,13 @@ class FlightMachine:
                 self._ground_s = 0.0
             if self.touchdown_s is not None and est.mode >= 0 and (est.height_m > 0.5 or est.vz_m_s > 0.2):
                 self.touchdown_s = None
-            if self.touchdown_s is None and (self._ground_s >= p.touchdown_confirm_s or ev.impact or timed_out):
+                self._bounced = True
+            # After a bounce, the top of the next hop also reads "at the sensor's minimum, not
+            # moving" for a moment (the sonar's minimum is 0.3 m): only a longer rest, or the
+            # floor's jolt, is a touchdown then (safety campaign: a battery sag ended at touchdown,
+            # the vehicle hopped, the ramp began at the hop's top, 0.23 m up, and it fell at 1 m/s).
+            confirm_s = p.touchdown_confirm_s * (3.0 if self._bounced else 1.0)
+            if self.touchdown_s is None and (self._ground_s >= confirm_s or ev.impact or timed_out):
                 self.touchdown_s = now
             if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:
                 self._go(FlightState.LANDED, now)

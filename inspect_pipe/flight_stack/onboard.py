@@ -145,6 +145,10 @@ class OnboardStack:
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm,
                 thrust_cap_frac=machine.thrust_cap(now_s, self._ramp_from_thrust(p.control.hover_thrust_frac)),
+                # A vehicle rising while told to descend carries trim from a disturbance that
+                # has gone (a battery sag ending at touchdown): shed it fast, or it hops off the
+                # floor and the next touchdown is taken at the top of the hop (safety campaign).
+                unwind_vertical=True,
             )
             names = tuple(n for n in names if n == "low_battery_land")
         self._last_thrust = setpoint.thrust_frac

@@ -48,11 +48,20 @@ class EstimationParams:
     flow_stuck_samples: int = param(
         5, 2, 100, "samples", "a flow sensor repeating the same non-zero speed bit for bit this many times is stuck"
     )
-    flow_stuck_min_m_s: float = param(0.05, 0.0, 1.0, "m/s", "repeats of a speed below this are not taken as stuck (hover, quantisation)")
+    flow_stuck_min_m_s: float = param(
+        0.05, 0.0, 1.0, "m/s", "repeats of a speed below this are stuck only if the IMU disagrees (hover, quantisation)"
+    )
+    flow_stuck_imu_dv_m_s: float = param(
+        0.15, 0.01, 2.0, "m/s", "a repeated low flow speed is stuck once the IMU-integrated speed has changed by this much"
+    )
     oblique_evidence_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique surface"
     )
     oblique_keep_s: float = param(1.0, 0.0, 30.0, "s", "a wall fitted to two oblique sonar readings is kept this long unless renewed")
+    sonar_stuck_samples: int = param(3, 2, 100, "samples", "a horizontal sonar repeating its range this many times ...")
+    sonar_stuck_travel_m: float = param(
+        0.1, 0.01, 2.0, "m", "... while the vehicle moved this far along its axis is stuck"
+    )
     sonar_beam_half_angle_deg: float = param(
         15.0, 0.0, 40.0, "deg", "horizontal sonars: half-width of the beam (the reading is the nearest echo in it)"
     )
@@ -117,6 +126,9 @@ class ControlParams:
         "above speed_unwind_threshold_m_s during a hold (the trim a gust left behind)"
     )
     speed_unwind_threshold_m_s: float = param(0.08, 0.0, 1.0, "m/s")
+    vz_unwind_threshold_m_s: float = param(
+        0.15, 0.0, 1.0, "m/s", "landing: the vertical integrator unwinds fast against a speed error above this"
+    )
     speed_unwind_hold_m_s: float = param(0.05, 0.0, 1.0, "m/s", "fast unwinding only while the speed command is within this of 0")
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"

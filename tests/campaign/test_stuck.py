@@ -22,5 +22,6 @@ def test_escape_from_the_wall_makes_progress(seed, index, fname):
     assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided
+    assert r.escapes_blocked == 0  # the escape is possible, so "not stuck" is a real verdict
     assert not r.stuck
     assert r.min_clearance_m > 0.3  # and it flew: a vehicle on the floor has no clearance figure

@@ -147,3 +147,37 @@ def test_a_flow_repeating_its_speed_bit_for_bit_is_stuck_and_dropped():
         m_live = live.update(t, meas(t, -0.43 + rng.gauss(0, 1e-3), 0.2 + rng.gauss(0, 1e-3)))[0].mode
         m_hover = hover.update(t, meas(t, 0.0, 0.0))[0].mode
     assert m_live == EstimationMode.BOTTOM_FRONT and m_hover == EstimationMode.BOTTOM_FRONT
+
+
+def test_a_sonar_repeating_its_range_while_the_vehicle_closes_on_it_is_dropped():
+    # GIVEN a left sonar stuck at 1.65 m while the bottom flow says the vehicle moves left at 0.8 m/s
+    upd = MAVStateUpdater()
+    left = []
+    for k in range(60):
+        t = 1.0 + 0.02 * k
+        m = dataclasses.replace(_meas(t, vx=0.0, vy=0.8), left_sonar=RangeReading(round(t, 1), 1.65))
+        left.append(upd.update(t, m)[1])
+    # THEN within a few of its 10 Hz samples the sector is unknown (stale), not 1.65 m away
+    assert left[5].left_m is not None
+    assert left[-1].left_m is None and left[-1].left_stale
+    # AND a sonar repeating its range over a hover is fine
+    still = MAVStateUpdater()
+    for k in range(60):
+        t = 1.0 + 0.02 * k
+        c = still.update(t, dataclasses.replace(_meas(t, vx=0.0, vy=0.0), left_sonar=RangeReading(round(t, 1), 1.65)))[1]
+    assert c.left_m is not None and not c.left_stale
+
+
+def test_a_near_zero_flow_repeated_while_the_imu_accelerates_is_stuck():
+    # GIVEN a front flow stuck at +0.03 m/s vertical while the IMU says the vehicle accelerates
+    # downwards at 1.5 m/s^2 (a landing whose descent the stuck reading hides)
+    upd = MAVStateUpdater()
+    modes = []
+    for k in range(20):
+        t = 1.0 + 0.02 * k
+        m = _meas(t)
+        m = dataclasses.replace(m, front_flow=FrontFlow(t, 0.0, 0.03, 200), imu=ImuReading(t, 0.0, 0.0, -1.5))
+        modes.append(upd.update(t, m)[0].mode)
+    # THEN once the IMU's speed change passes 0.15 m/s the front flow is dropped: mode 0
+    assert modes[2] == EstimationMode.BOTTOM_FRONT
+    assert modes[-1] == EstimationMode.BOTTOM
