@@ -58,9 +58,11 @@ class EstimationParams:
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique surface"
     )
     oblique_keep_s: float = param(1.0, 0.0, 30.0, "s", "a wall fitted to two oblique sonar readings is kept this long unless renewed")
-    sonar_stuck_samples: int = param(3, 2, 100, "samples", "a horizontal sonar repeating its range this many times ...")
+    sonar_stuck_samples: int = param(
+        3, 2, 100, "samples", "horizontal sonar: the same range this many times running, while the vehicle ..."
+    )
     sonar_stuck_travel_m: float = param(
-        0.1, 0.01, 2.0, "m", "... while the vehicle moved this far along its axis is stuck"
+        0.1, 0.01, 2.0, "m", "... moved this far along the sonar's axis meanwhile: the sonar is stuck (reads as silent)"
     )
     sonar_beam_half_angle_deg: float = param(
         15.0, 0.0, 40.0, "deg", "horizontal sonars: half-width of the beam (the reading is the nearest echo in it)"
