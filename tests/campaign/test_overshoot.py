@@ -24,6 +24,8 @@ CASES = [
     # a gust held against by the speed integrator ends near a wall
     (1, 1041, "campaign_s1_e01041_inspection_sweep.yaml", 0.188, 0.10),
     (1, 674, "campaign_s1_e00674_wall_push.yaml", 0.181, 0.10),
+    # a stuck side sonar while pushing at 0.77 m/s towards the wall (fresh seed 2)
+    (2, 893, "campaign_s2_e00893_wall_push.yaml", 0.145, 0.10),
 ]
 
 
@@ -31,8 +33,8 @@ CASES = [
 def test_overshoot_regression_stays_within_the_goal(seed, index, fname, before, bound):
     assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     # GIVEN a forward push held while yawing (the wall heard ever more obliquely by both sonars),
-    # or a gust the speed integrator held against ending near a wall
-    # WHEN ours flies it THEN the oblique-wall fit / the integrator's fast unwinding keep the
+    # a gust the speed integrator held against ending near a wall, or a stuck sonar
+    # WHEN ours flies it THEN the oblique-wall fit / fast unwinding / stuck-sonar check keep the
     # vehicle within the goal of the 1 m line, where it used to pass it by ``before``
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided

@@ -12,7 +12,11 @@ import yaml
 from inspect_pipe.campaign.generator import generate_episode
 from inspect_pipe.flight import load_scenario, run_scenario
 
-REGRESSIONS = sorted((Path(__file__).resolve().parents[2] / "scenarios" / "regressions").glob("*.yaml"))
+_DIR = Path(__file__).resolve().parents[2] / "scenarios" / "regressions"
+REGRESSIONS = sorted(_DIR.glob("*.yaml"))
+# Failures found but not fixed yet: kept so that a fix shows up (strict xfail: flying one without
+# a collision fails this suite until the file moves up into regressions/).
+OPEN = sorted((_DIR / "open").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", REGRESSIONS, ids=lambda p: p.stem)
@@ -22,7 +26,7 @@ def test_regression_scenario_flies_without_collision(path):
     assert res.status.value == "completed", f"collision at {res.collided_at_s}"
 
 
-@pytest.mark.parametrize("path", REGRESSIONS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", REGRESSIONS + OPEN, ids=lambda p: p.stem)
 def test_regression_file_is_the_campaign_episode_its_header_names(path):
     # GIVEN the header "# Campaign seed S, episode I ..." WHEN the generator makes that episode
     # THEN the file is exactly it (the name aside): the regression replays what the campaign flew
@@ -36,3 +40,10 @@ def test_regression_file_is_the_campaign_episode_its_header_names(path):
 
 def test_there_are_regressions():
     assert len(REGRESSIONS) >= 2
+
+
+@pytest.mark.parametrize("path", OPEN, ids=lambda p: p.stem)
+@pytest.mark.xfail(strict=True, reason="an open failure of the safety campaign (docs/campaign.md, What is left)")
+def test_open_failure_still_collides(path):
+    res = run_scenario(load_scenario(path))
+    assert res.status.value == "completed", f"collision at {res.collided_at_s}"
