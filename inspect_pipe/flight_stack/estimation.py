@@ -208,12 +208,12 @@ class MAVStateUpdater:
         self._memory_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._wall_stamps = {"left": -1.0, "right": -1.0}
         self._stuck = {
-            k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_min_m_s, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")
+            k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")
         }
-        # Horizontal sonars: a range is never "moving" by itself; stuck once the vehicle's own
-        # speed along the axis says it should have changed.
+        # Horizontal sonars: stuck once the vehicle's own speed along the axis says the range
+        # should have changed.
         self._range_stuck = {
-            k: StuckCheck(p.sonar_stuck_samples, math.inf, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
+            k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
         }
         self._v_prev = (0.0, 0.0)  # last horizontal speed estimate (the stuck-sonar check runs first)
         self._last_now: float | None = None
@@ -435,17 +435,17 @@ class MAVStateUpdater:
 
 
 class StuckCheck:
-    """A sensor that repeats its last value bit for bit is stuck (a hung driver or bus re-sending
-    the last frame, freshly stamped), not a vehicle holding a speed: real flow carries noise in
-    its last bits. A repeated value below ``min_m_s`` (a quantised flow output over a hover may
-    repeat; a range always) is judged stuck only once another sensor says it should have changed:
-    the integral of ``rates`` since the repeats began (flow: the IMU's acceleration; range: the
-    speed along the sensor's axis) exceeds ``imu_dv_m_s``. Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made the
+    """A sensor that repeats its last value bit for bit (a hung driver or bus re-sending the last
+    frame, freshly stamped) while another sensor says the value has changed is stuck: after
+    ``samples`` equal readings, once the integral of ``rates`` since the repeats began (flow: the
+    IMU's acceleration; range: the speed along the sensor's axis) exceeds ``change_limit``. A
+    repeat alone is not enough: a quantised output (PX4Flow's integer pixel flow, a 1 mm sonar)
+    repeats in steady flight. Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made the
     station keeping accelerate the vehicle to 2 m/s into a wall; a front flow stuck at +0.03 m/s
     vertical during a landing let the descent speed up to 1.5 m/s into the floor."""
 
-    def __init__(self, samples: int, min_m_s: float, imu_dv_m_s: float) -> None:
-        self.samples, self.min_m_s, self.imu_dv_m_s = samples, min_m_s, imu_dv_m_s
+    def __init__(self, samples: int, change_limit: float) -> None:
+        self.samples, self.change_limit = samples, change_limit
         self._stamp: float | None = None
         self._value: tuple[float, ...] | None = None
         self._repeats = 0
@@ -465,8 +465,7 @@ class StuckCheck:
             self._stamp, self._value = stamp_s, value
         if self._repeats < self.samples - 1:
             return False
-        moving = max(abs(v) for v in self._value) >= self.min_m_s  # type: ignore[arg-type]
-        return moving or max(abs(dv) for dv in self._dv) > self.imu_dv_m_s
+        return max(abs(dv) for dv in self._dv) > self.change_limit
 
 
 _HALF_PI = 1.5707963267948966

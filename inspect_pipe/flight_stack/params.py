@@ -46,13 +46,10 @@ class EstimationParams:
     memory_keep_travel_m: float = param(2.0, 0.1, 20.0, "m", "obstacle memory: or after this much travel (odometry drift)")
     memory_max_angle_deg: float = param(60.0, 0.0, 89.0, "deg", "obstacle memory: surfaces facing an axis within this angle count for it")
     flow_stuck_samples: int = param(
-        5, 2, 100, "samples", "a flow sensor repeating the same non-zero speed bit for bit this many times is stuck"
-    )
-    flow_stuck_min_m_s: float = param(
-        0.05, 0.0, 1.0, "m/s", "repeats of a speed below this are stuck only if the IMU disagrees (hover, quantisation)"
+        5, 2, 100, "samples", "a flow sensor repeating its speed bit for bit this many times ..."
     )
     flow_stuck_imu_dv_m_s: float = param(
-        0.15, 0.01, 2.0, "m/s", "a repeated low flow speed is stuck once the IMU-integrated speed has changed by this much"
+        0.15, 0.01, 2.0, "m/s", "... while the IMU-integrated speed changed by this much: the flow sensor is stuck"
     )
     oblique_evidence_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique surface"

@@ -127,26 +127,28 @@ def test_range_slope_fits_the_closing_rate_and_resets_on_gaps_and_missing_echoes
     assert s.rate(2.0) is None  # samples too old
 
 
-def test_a_flow_repeating_its_speed_bit_for_bit_is_stuck_and_dropped():
-    def meas(t, bottom_vx, bottom_vy):
+def test_a_flow_repeating_its_speed_while_the_imu_says_it_changed_is_stuck_and_dropped():
+    def meas(t, bottom_vx, bottom_vy, ax=0.0):
         m = _meas(t)  # live (jittered) front flow and ranges
-        return dataclasses.replace(m, bottom_flow=BottomFlow(t, bottom_vx, bottom_vy, 200))
+        return dataclasses.replace(m, bottom_flow=BottomFlow(t, bottom_vx, bottom_vy, 200), imu=ImuReading(t, ax, 0.0, 0.0))
 
-    # GIVEN a bottom flow that repeats -0.43 m/s exactly, freshly stamped (a hung driver)
+    # GIVEN a bottom flow that repeats -0.43 m/s exactly, freshly stamped (a hung driver), while
+    # the IMU says the vehicle accelerates forwards at 2 m/s^2
     upd = MAVStateUpdater()
-    modes = [upd.update(1.0 + 0.02 * k, meas(1.0 + 0.02 * k, -0.43, 0.2))[0].mode for k in range(10)]
-    # THEN after flow_stuck_samples readings it is not used: mode 2 (front flow and ranges)
-    n = upd.p.flow_stuck_samples
-    assert modes[: n - 1] == [EstimationMode.BOTTOM_FRONT] * (n - 1)
-    assert modes[n - 1 :] == [EstimationMode.TOF_FRONT] * (10 - n + 1)
-    # AND a live flow (noise in the last bits) or a repeated zero over a hover is not stuck
+    modes = [upd.update(1.0 + 0.02 * k, meas(1.0 + 0.02 * k, -0.43, 0.2, ax=2.0))[0].mode for k in range(12)]
+    # THEN once the IMU's speed change passes 0.15 m/s (and 5 equal readings) it is not used:
+    # mode 2 (front flow and ranges)
+    assert modes[:4] == [EstimationMode.BOTTOM_FRONT] * 4
+    assert modes[-1] == EstimationMode.TOF_FRONT
+    # AND the same repeats in steady flight (a quantised output, the IMU says nothing changed),
+    # or a live flow with noise in its last bits, are not stuck
     rng = random.Random(1)
-    live, hover = MAVStateUpdater(), MAVStateUpdater()
-    for k in range(10):
+    steady, live = MAVStateUpdater(), MAVStateUpdater()
+    for k in range(12):
         t = 1.0 + 0.02 * k
-        m_live = live.update(t, meas(t, -0.43 + rng.gauss(0, 1e-3), 0.2 + rng.gauss(0, 1e-3)))[0].mode
-        m_hover = hover.update(t, meas(t, 0.0, 0.0))[0].mode
-    assert m_live == EstimationMode.BOTTOM_FRONT and m_hover == EstimationMode.BOTTOM_FRONT
+        m_steady = steady.update(t, meas(t, -0.43, 0.2))[0].mode
+        m_live = live.update(t, meas(t, -0.43 + rng.gauss(0, 1e-3), 0.2 + rng.gauss(0, 1e-3), ax=2.0))[0].mode
+    assert m_steady == EstimationMode.BOTTOM_FRONT and m_live == EstimationMode.BOTTOM_FRONT
 
 
 def test_a_sonar_repeating_its_range_while_the_vehicle_closes_on_it_is_dropped():
