@@ -100,3 +100,19 @@ def test_ahead_of_the_baselines_is_not_judged_without_baselines():
     worse = dict(ours, subsets={"dropout": {"collision_free": 0.9}, "link_loss": {"collision_free": 1.0}})
     g2 = _goals({"ours": worse, "px4_like": ours})
     assert g2["ahead_on_dropout"]["met"] is False and g2["ahead_on_link_loss"]["met"] is True
+
+
+def test_an_escape_into_a_pillar_within_the_stop_line_is_not_judged():
+    from inspect_pipe.campaign.generator import Escape
+
+    spec = _spec()
+    # a full-height pillar whose face is 1.07 m to the right (-y) of the vehicle at (5, 0)
+    spec.doc["world"]["boxes"] = [{"min": [4.0, -3.0, 0.0], "max": [6.0, -1.07, 8.0]}]
+    into = Escape(1.0, 3.0, (0.0, -1.0), 0.3)
+    away = Escape(1.0, 3.0, (0.0, 1.0), 0.3)
+    m = _monitor(spec)
+    # GIVEN the stick asks for 0.3 m towards the pillar: only 0.07 m are allowed by the 1 m line
+    assert not m._escape_possible(5.0, 0.0, 1.5, into)
+    # AND away from it, or along the hold with the pillar behind, the escape is possible
+    assert m._escape_possible(5.0, 0.0, 1.5, away)
+    assert m._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (1.0, 0.0), 0.3))
