@@ -97,7 +97,8 @@ def coco(report) -> dict:
                            "area_m2": round(d.area_m2, 6), "centroid_wall_m": [round(x, 4) for x in d.centroid_wall_m]},
         })
     return {
-        "info": {"description": "inspect_pipe defect register of a wall mosaic (rejected entries left out)",
+        "info": {"description": "inspect_pipe defect register of a wall mosaic (rejected entries left out); detector "
+                                f"{report.trace.get('detector_engine')} engine, {report.trace.get('model_file')} v{report.trace.get('model_version')}",
                  "version": report.trace["software"], "date_created": report.trace["created_utc"]},
         "licenses": [],
         "images": [{"id": 1, "file_name": "mosaic.png", "width": int(m.shape[1]), "height": int(m.shape[0])}],

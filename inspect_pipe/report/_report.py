@@ -159,6 +159,9 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
     model = inp.detections.get("model") or {}
     trace = {
         "software": f"inspect_pipe {inspect_pipe.__version__}",
+        # detections written before the engines had names came from the saliency engine
+        "detector_engine": (model.get("engine") or "saliency") if model else None,
+        "detector_engines": model.get("engines"),  # fused: the versions of the two engines it mixes
         "model_version": model.get("version"), "model_file": Path(str(model.get("file", ""))).name or None,
         "operating_points": model.get("operating_points"), "min_area_px": model.get("min_area_px"),
         "kinds": inp.detections.get("kinds"),
