@@ -19,6 +19,7 @@ from typer.core import TyperGroup
 
 from cli._common import one_line_errors
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 DEFECTS_FORMAT = "inspect_pipe.defects/1"
@@ -38,9 +39,11 @@ app = typer.Typer(
     cls=_DefaultToRun,
     help=(
         "Detect corrosion and cracks: per-pixel defect probability, mask and regions.\n\n"
-        "INPUT alone is short for 'detect run INPUT'.\n\nExamples:\n\n"
+        "INPUT alone is short for 'detect run INPUT'. Engines (--engine): onnx, the learned network "
+        "(default); saliency, the paper's method; fused, a mix of both.\n\nExamples:\n\n"
         "  inspect-pipe detect wall.jpg -o out/det\n\n"
         "  inspect-pipe detect sweep_frames/ -o out/det --kind crack\n\n"
+        "  inspect-pipe detect wall.jpg -o out/det --engine saliency\n\n"
         "  inspect-pipe detect out/mosaic -o out/det          (a mosaic output folder)\n\n"
         "  inspect-pipe detect train ../shared/data/defects -o my_model.npz"
     ),
@@ -50,10 +53,11 @@ app = typer.Typer(
 )
 
 
-class Engine(str, Enum):
-    saliency = "saliency"
-    onnx = "onnx"
-    fused = "fused"
+Engine = Enum("Engine", {e: e for e in ENGINES}, type=str)
+DEFAULT = Engine(DEFAULT_ENGINE)  # of detect, run and demo
+ENGINE_HELP = ("onnx: the learned network on onnxruntime (best on every benchmark set); saliency: Bayes on "
+               "saliency features, the paper's explainable method, needs no onnxruntime; fused: a per-class "
+               "weighted mean of both.")
 
 
 class Kind(str, Enum):
@@ -172,20 +176,33 @@ class _Outputs:
             raise InputError(first["file"], first["problem"] + more, f"{len(self.images)} other images written to {self.out}")
 
 
-def _detect_each(files: list[Path], outs: _Outputs, detect_one) -> None:
-    """One image at a time: read, detect (``detect_one(img)``), write; errors recorded."""
-    for path in files:
-        name = outs.name_for(path)
-        try:
-            img, valid = read_image(path)
+def _detect_each(files: list[Path], outs: _Outputs, eng, kinds: tuple[str, ...], tile_px: int) -> None:
+    """Read, detect, write, ``eng.batch`` images at a time (a sweep's equal-size frames share one
+    network call); an image that cannot be read or detected is recorded and the others go on."""
+    for start in range(0, len(files), eng.batch):
+        ready = []  # (path, name, img, valid)
+        for path in files[start:start + eng.batch]:
+            name = outs.name_for(path)
             try:
-                det = detect_one(img)
+                img, valid = read_image(path)
+                eng.check_image(img)
+            except InputError as err:
+                outs.fail(path, err)
+                continue
             except ValueError as err:
-                raise InputError(path, str(err)) from None
-        except InputError as err:
-            outs.fail(path, err)
+                outs.fail(path, InputError(path, str(err)))
+                continue
+            ready.append((path, name, img, valid))
+        if not ready:
             continue
-        outs.add(path, name, img, valid, det)
+        try:
+            dets = eng.detect_batch([r[2] for r in ready], kinds=kinds, tile_px=tile_px)
+        except ValueError as err:  # batch of one but for the network, whose images were checked above
+            for path, *_ in ready:
+                outs.fail(path, InputError(path, str(err)))
+            continue
+        for (path, name, img, valid), det in zip(ready, dets):
+            outs.add(path, name, img, valid, det)
 
 
 @app.command("run")
@@ -194,108 +211,25 @@ def run(
     input: Annotated[Path, typer.Argument(help="An image, a folder of images, or a mosaic output folder.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file (default: the shipped one).")] = None,
-    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64).", min=256)] = 768,
-    engine: Annotated[Engine, typer.Option("--engine", help="saliency: Bayes on saliency features (default); onnx: the learned network; fused: a per-class weighted mean of both (--model: its parameter .json).")] = Engine.saliency,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one): .onnx (onnx), .npz (saliency) or .json (fused: its parameters).")] = None,
+    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = 768,
+    engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
     """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json.
 
     Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack ;
-    inspect-pipe detect frames/ -o out/det --engine onnx ; inspect-pipe detect frames/ -o out/det --engine fused
+    inspect-pipe detect frames/ -o out/det --engine saliency ; inspect-pipe detect frames/ -o out/det --engine fused
     """
-    import inspect_pipe.saliency_defects as sd
+    from inspect_pipe.saliency_defects import load_engine
 
-    if engine is Engine.onnx:
-        return _run_onnx(input, out, kind, model, tile_px)
-    if engine is Engine.fused:
-        return _run_fused(input, out, kind, model, tile_px)
-    if tile_px % 64:
-        raise InputError("--tile-px", f"{tile_px} is not a multiple of 64")
-    model_path = model or sd.default_model_path()
-    if not model_path.exists():
-        raise InputError(model_path, "model file not found", "train one with 'inspect-pipe detect train'")
-    try:
-        mdl = sd.load_model(model_path)
-    except ValueError as err:
-        raise InputError(model_path, str(err)) from None
+    eng = load_engine(engine.value, model)  # one line and exit 2 for a missing or bad model
+    eng.check_tile(tile_px)
     kinds = _kinds(kind)
-    for k in kinds:
-        if k not in mdl.classes:
-            raise InputError(model_path, f"model has no class {k!r}", f"has {', '.join(mdl.classes)}")
+    eng.check_kinds(kinds)
     files = list_inputs(input)  # bad input fails before anything is created
     outs = _Outputs(out)
-    _detect_each(files, outs, lambda img: sd.detect(img, mdl, kinds=kinds, tile_px=tile_px))
-    outs.finish({"file": str(model_path), "version": mdl.version,
-                 "operating_points": {k: mdl.classes[k].threshold for k in kinds},
-                 "min_area_px": {k: mdl.classes[k].min_area_px for k in kinds}}, kinds)
-
-
-def _run_onnx(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
-    """``detect --engine onnx``: same outputs, the learned network on onnxruntime; a sweep's
-    equal-size frames run in batches."""
-    from inspect_pipe.saliency_defects import _onnx_detect as od
-
-    if tile_px % od.MULTIPLE_OF:
-        raise InputError("--tile-px", f"{tile_px} is not a multiple of {od.MULTIPLE_OF}")
-    model_path = model or od.default_onnx_path()
-    try:
-        mdl = od.load_onnx_model(model_path)
-    except ValueError as err:
-        raise InputError(model_path, str(err), "use --engine saliency, or train one with 'inspect-pipe detect train --engine onnx'") from None
-    kinds = _kinds(kind)
-    for k in kinds:
-        if k not in mdl.classes:
-            raise InputError(model_path, f"model has no class {k!r}", f"has {', '.join(mdl.classes)}")
-    files = list_inputs(input)
-    outs = _Outputs(out)
-    chunk = 4
-    for start in range(0, len(files), chunk):
-        ready = []  # (path, name, img, valid)
-        for path in files[start:start + chunk]:
-            name = outs.name_for(path)
-            try:
-                img, valid = read_image(path)
-                od._check(img)
-            except InputError as err:
-                outs.fail(path, err)
-                continue
-            except ValueError as err:
-                outs.fail(path, InputError(path, str(err)))
-                continue
-            ready.append((path, name, img, valid))
-        if ready:
-            dets = od.detect_onnx_batch([r[2] for r in ready], mdl, kinds=kinds, tile_px=tile_px)
-            for (path, name, img, valid), det in zip(ready, dets):
-                outs.add(path, name, img, valid, det)
-    outs.finish({"file": str(model_path), "engine": "onnx", "version": mdl.version,
-                 "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
-                 "min_area_px": {k: mdl.min_area_px[k] for k in kinds}}, kinds)
-
-
-def _run_fused(input: Path, out: Path, kind: Kind, model: Optional[Path], tile_px: int) -> None:
-    """``detect --engine fused``: both engines' maps, mixed per class with the weights and
-    thresholds fitted on the validation images (``models/fused_v1.json``)."""
-    from inspect_pipe.saliency_defects import _fused as fu
-
-    if tile_px % 64:
-        raise InputError("--tile-px", f"{tile_px} is not a multiple of 64")
-    params_path = model or fu.default_fused_path()
-    try:
-        mdl = fu.load_fused_model(params_path)
-    except ValueError as err:
-        raise InputError(params_path, str(err), "use --engine saliency or --engine onnx") from None
-    kinds = _kinds(kind)
-    for k in kinds:
-        if k not in mdl.weights:
-            raise InputError(params_path, f"fused parameters have no class {k!r}", f"have {', '.join(mdl.weights)}")
-    files = list_inputs(input)  # bad input fails before anything is created
-    outs = _Outputs(out)
-    _detect_each(files, outs, lambda img: fu.detect_fused(img, mdl, kinds=kinds, tile_px=tile_px))
-    outs.finish({"file": str(params_path), "engine": "fused", "version": mdl.version,
-                 "engines": {"saliency": mdl.saliency.version, "onnx": mdl.onnx.version},
-                 "weights_saliency": {k: mdl.weights[k] for k in kinds},
-                 "operating_points": {k: round(mdl.thresholds_u8[k] / 255, 4) for k in kinds},
-                 "min_area_px": {k: mdl.min_area_px[k] for k in kinds}}, kinds)
+    _detect_each(files, outs, eng, kinds, tile_px)
+    outs.finish(eng.model_doc(kinds), kinds)
 
 
 @app.command("train")
@@ -306,7 +240,7 @@ def train(
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
-    engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz); onnx: the learned network (.onnx, needs the [train] extra).")] = Engine.saliency,
+    engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: stop training after this many minutes.", min=1)] = 85.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).

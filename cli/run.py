@@ -10,7 +10,9 @@ from typing import Annotated, Optional
 import typer
 
 from cli._common import one_line_errors
+from cli.detect import DEFAULT, ENGINE_HELP, Engine
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE
 
 HELP = """Run the whole batch pipeline on one or many sweeps: capture (fly:SCENARIO.yaml only) ->
 mosaic -> detect -> report.
@@ -23,6 +25,11 @@ Finished steps are skipped (their output exists and their options are unchanged)
 everything, --rerun-from STEP redoes STEP and what follows. A surveyor's statuses in
 report/defects.json or defects.csv are kept.
 
+The detect step uses --engine: onnx (default), the learned network;
+saliency, the paper's saliency-and-Bayes detector; fused, both mixed.
+Another engine than the last run's redoes detect and report; the report
+names the engine and model version.
+
 Examples:
 
   inspect-pipe run out/sweep1 -o out/run1
@@ -32,6 +39,8 @@ Examples:
   inspect-pipe run fly:scenarios/inspection_sweep_wall.yaml -o out/run_sim
 
   inspect-pipe run out/sweep1 -o out/run1 --rerun-from report --scheme MSC.1/Circ.1399
+
+  inspect-pipe run out/sweep1 -o out/run1 --engine saliency     (the paper's detector)
 """
 
 
@@ -63,7 +72,8 @@ class RichProgress:
 
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
-                 m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None):
+                 m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
+                 engine: str = DEFAULT_ENGINE):
     from inspect_pipe.pipeline import DetectConfig, RunConfig
     from inspect_pipe.report import SCHEMES
 
@@ -75,8 +85,16 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
     report = {"rating": {"scheme": scheme, "area_size_m": area_m}, "pdf": not no_pdf}
     if m_per_px:
         report["m_per_px"] = m_per_px
-    return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing),
+    return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine),
                      report=report, report_out=str(report_out) if report_out else None)
+
+
+def check_engine(dc) -> None:
+    """Load the detect step's engine (``DetectConfig``) once, so that a missing onnxruntime or a
+    bad model file stops the command (one line, exit 2) before a flight or a mosaic is computed."""
+    from inspect_pipe.saliency_defects import load_engine
+
+    load_engine(dc.engine, dc.model).check_kinds(dc.kinds)
 
 
 def _name(spec: str) -> str:
@@ -106,6 +124,7 @@ def run(
     m_per_px: Annotated[Optional[float], typer.Option("--m-per-px", help="Folder input: metres per mosaic pixel.")] = None,
     focal_px: Annotated[Optional[float], typer.Option("--focal-px", help="Folder input: focal length in pixels.")] = None,
     no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
+    engine: Annotated[Engine, typer.Option("--engine", help="Detect step: " + ENGINE_HELP)] = DEFAULT,
 ) -> None:
     from inspect_pipe.pipeline import STEP_NAMES, input_kind, run_many, run_pipeline
 
@@ -114,7 +133,8 @@ def run(
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
-                         m_per_px=m_per_px, focal_px=focal_px) for s in inputs]
+                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value) for s in inputs]
+    check_engine(cfgs[0].detect)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
         try:

@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
 from ._store import DEFECTS_FORMAT, RunStore, write_json, write_png
 
@@ -23,10 +24,19 @@ Progress = Callable[[str, int, int], None]
 
 @dataclass(frozen=True)
 class DetectConfig:
+    """Options of the detect step. ``engine`` is a name of ``saliency_defects.ENGINES`` (the
+    default is ``DEFAULT_ENGINE``, as for ``inspect-pipe detect``); ``model`` that engine's model
+    file (None: the shipped one)."""
+
     kinds: tuple[str, ...] = ("corrosion", "crack")
-    model: str | None = None  # default: the shipped model
+    model: str | None = None  # default: the shipped model of the engine
     keyframe_spacing: float = 0.5  # keyframes' centres at least this many frame widths apart; 0 = no keyframes
     tile_px: int = 768
+    engine: str = DEFAULT_ENGINE
+
+    def __post_init__(self) -> None:
+        if self.engine not in ENGINES:
+            raise InputError("--engine", f"{self.engine!r} unknown", f"one of {', '.join(ENGINES)}")
 
 
 @dataclass(frozen=True)
@@ -146,19 +156,14 @@ def select_keyframes(views, spacing: float) -> list[int]:
 
 
 def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) -> None:
-    import inspect_pipe.saliency_defects as sd
+    """Detect on the mosaic (transparent pixels are not wall) and on keyframes, with the engine
+    of ``cfg.detect`` (loaded as ``inspect-pipe detect`` loads it, ``load_engine``)."""
+    from inspect_pipe.saliency_defects import load_engine
 
     dc = cfg.detect
-    model_path = Path(dc.model) if dc.model else sd.default_model_path()
-    if not model_path.is_file():
-        raise InputError(str(model_path), "model file not found")
-    try:
-        model = sd.load_model(model_path)
-    except ValueError as err:
-        raise InputError(str(model_path), str(err)) from None
-    for k in dc.kinds:
-        if k not in model.classes:
-            raise InputError(str(model_path), f"model has no class {k!r}")
+    eng = load_engine(dc.engine, dc.model, threads=cfg.threads)
+    eng.check_kinds(dc.kinds)
+    eng.check_tile(dc.tile_px)
     bgra = store.load_mosaic_image()
     valid = bgra[:, :, 3] > 0
     doc = store.load_mosaic_json()
@@ -171,12 +176,15 @@ def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     total = 1 + len(keyframes)
     if progress:
         progress("detect", 0, total)
-    det = sd.detect(np.ascontiguousarray(bgra[:, :, :3]), model, kinds=dc.kinds, tile_px=dc.tile_px)
+    mosaic_png = str(store.mosaic_dir / "mosaic.png")
+    try:
+        det = eng.detect(np.ascontiguousarray(bgra[:, :, :3]), kinds=dc.kinds, tile_px=dc.tile_px)
+    except ValueError as err:
+        raise InputError(mosaic_png, str(err)) from None
     regions, images = [], []
     for k in dc.kinds:
-        cm = model.classes[k]
         p = np.where(valid, det.class_probs[k], 0).astype(np.uint8)
-        m, *_ = sd.decide(p, cm)
+        m = eng.decide(p, k)
         store.save_class_map("mosaic", k, "prob", p)
         store.save_class_map("mosaic", k, "mask", (m & valid).astype(np.uint8) * 255)
     prob = np.where(valid, det.prob, 0).astype(np.uint8)
@@ -186,8 +194,8 @@ def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     for r in det.regions:
         x, y = r.polygon_px[0]
         if valid[y, x]:
-            regions.append({"id": len(regions) + 1, "image": "mosaic", "file": str(store.mosaic_dir / "mosaic.png"), **r.to_json()})
-    images.append({"name": "mosaic", "file": str(store.mosaic_dir / "mosaic.png"), "width": int(bgra.shape[1]),
+            regions.append({"id": len(regions) + 1, "image": "mosaic", "file": mosaic_png, **r.to_json()})
+    images.append({"name": "mosaic", "file": mosaic_png, "width": int(bgra.shape[1]),
                    "height": int(bgra.shape[0]), "prob": "mosaic.prob.png", "mask": "mosaic.mask.png",
                    "defect_fraction": round(float(mask.mean()), 6)})
     if progress:
@@ -196,21 +204,23 @@ def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
         from inspect_pipe.mosaic import SweepSource
 
         src = SweepSource(sweep)
-        for n, idx in enumerate(keyframes):  # mosaic.json indices are positions in the sweep's frame list
-            img = src.load(idx)  # undistorted, as the mosaic's H expects
-            fd = sd.detect(img, model, kinds=dc.kinds, tile_px=dc.tile_px)
-            for k in dc.kinds:
-                m, *_ = sd.decide(fd.class_probs[k], model.classes[k])
-                store.save_class_map(str(idx), k, "mask", m.astype(np.uint8) * 255)
-            for r in fd.regions:
-                regions.append({"id": len(regions) + 1, "image": f"frame {idx}", "file": sweep.frames[idx].image, **r.to_json()})
+        for start in range(0, len(keyframes), eng.batch):  # a sweep's frames share one network call
+            part = keyframes[start:start + eng.batch]
+            imgs = [src.load(idx) for idx in part]  # undistorted, as the mosaic's H expects; indices are positions in the sweep's frame list
+            try:
+                dets = eng.detect_batch(imgs, kinds=dc.kinds, tile_px=dc.tile_px)
+            except ValueError as err:
+                raise InputError(sweep.frames[part[0]].image, str(err)) from None
+            for idx, fd in zip(part, dets):
+                for k in dc.kinds:
+                    store.save_class_map(str(idx), k, "mask", eng.decide(fd.class_probs[k], k).astype(np.uint8) * 255)
+                for r in fd.regions:
+                    regions.append({"id": len(regions) + 1, "image": f"frame {idx}", "file": sweep.frames[idx].image, **r.to_json()})
             if progress:
-                progress("detect", n + 2, total)
+                progress("detect", 1 + start + len(part), total)
     write_json(store.detect_dir / "defects.json", {
         "format": DEFECTS_FORMAT,
-        "model": {"file": str(model_path), "version": model.version,
-                  "operating_points": {k: model.classes[k].threshold for k in dc.kinds},
-                  "min_area_px": {k: model.classes[k].min_area_px for k in dc.kinds}},
+        "model": eng.model_doc(dc.kinds),
         "kinds": list(dc.kinds), "images": images, "regions": regions, "errors": [],
         "keyframes": keyframes, "keyframe_spacing": dc.keyframe_spacing,
     })

@@ -19,6 +19,9 @@ The learned engine (``--engine onnx``, a half-resolution U-Net on onnxruntime) h
 and the fused engine (``--engine fused``, per-class weighted mean of both, fitted on validation images):
 
     >>> det = detect_fused(bgr_image, load_fused_model())
+
+Callers that take an engine by name (``inspect-pipe detect``, the pipeline) load it with
+:func:`load_engine` (``ENGINES``; ``DEFAULT_ENGINE`` is ``onnx``).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from pathlib import Path
 
 from ._combine import combine_max, combine_normalised_sum, conspicuity_maps
 from ._datasets import SETS, SPLIT_RULE, LabelledImage, generic_set, labelled_set, split_of
+from ._engines import DEFAULT_ENGINE, ENGINES, DetectorEngine, load_engine
 from ._detect import TILE_PX, Detection, Region, class_probabilities, class_probabilities_u8, decide, detect
 from ._features import FEATURE_NAMES, FeatureStack, compute_features
 from ._fused import FusedModel, default_fused_path, detect_fused, load_fused_model
@@ -44,6 +48,7 @@ def default_model_path() -> Path:
 
 
 __all__ = [
+    "DEFAULT_ENGINE", "ENGINES", "DetectorEngine", "load_engine",
     "FEATURE_NAMES", "KINDS", "MODEL_VERSION", "SPLIT_RULE", "TILE_PX",
     "ClassModel", "ClassTrainConfig", "DEFAULT_CONFIGS", "DefectModel", "Detection", "FeatureStack",
     "LabelledImage", "Region",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,9 +19,15 @@ FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "mosaic" / "synth_r
 runner = CliRunner()
 
 
-def _cfg(src: Path, **report) -> RunConfig:
-    return RunConfig(input=str(src), focal_px=618.0, detect=DetectConfig(keyframe_spacing=0.0),
+def _cfg(src: Path, engine: str = "onnx", **report) -> RunConfig:
+    return RunConfig(input=str(src), focal_px=618.0, detect=DetectConfig(keyframe_spacing=0.0, engine=engine),
                      report={"m_per_px": 0.002, "pdf": False, **report})
+
+
+def _cli_args(src: Path, out: Path) -> list[str]:
+    """``inspect-pipe run`` with the options of ``_cfg`` for detect (so a copy of the finished
+    run keeps its detect step when the engine is the same)."""
+    return ["run", str(src), "-o", str(out), "--focal-px", "618", "--m-per-px", "0.002", "--keyframe-spacing", "0", "--no-pdf"]
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +49,13 @@ def test_first_run_runs_every_step_and_writes_the_report(done_run):
     assert all(d["area_m2"] > 0 and len(d["centroid_wall_m"]) == 2 for d in doc["defects"])
     run = json.loads(store.run_json.read_text())
     assert set(run["steps"]) == {"mosaic", "detect", "report"}
+    # the report names the engine and model that produced the detections, in every output
+    assert run["steps"]["detect"]["options"]["detect"]["engine"] == "onnx"
+    trace = doc["traceability"]
+    assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v1.onnx", "1")
+    html = (store.report_dir / "report.html").read_text()
+    assert "onnx engine, model defects_unet_v1.onnx v1" in html and "detector onnx (defects_unet_v1.onnx v1)" in html
+    assert "onnx engine, defects_unet_v1.onnx v1" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
 
 
 def test_second_run_skips_finished_steps(done_run):
@@ -58,6 +72,70 @@ def test_changed_report_option_reruns_only_the_report(done_run):
     steps = plan(store, _cfg(src, rating={"scheme": "MSC.1/Circ.1399"}))
     assert [a for _, a, _ in steps] == ["n/a", "skip", "skip", "run"]
     assert steps[3][2] == "options changed"
+
+
+def test_changed_engine_reruns_detect_and_report(done_run, tmp_path):
+    root, src, _ = done_run
+    run = tmp_path / "run"
+    shutil.copytree(root / "run", run)
+    store = RunStore(run)
+    # GIVEN a run finished with the onnx engine WHEN the engine changes THEN detect and report run again
+    steps = plan(store, _cfg(src, engine="saliency"))
+    assert [a for _, a, _ in steps] == ["n/a", "skip", "run", "run"] and steps[2][2] == "options changed"
+    out = run_pipeline(run, _cfg(src, engine="saliency"), log=lambda s: None)
+    assert [(s.name, s.action) for s in out.steps[1:]] == [("mosaic", "skipped"), ("detect", "ran"), ("report", "ran")]
+    det = json.loads((store.detect_dir / "defects.json").read_text())
+    assert det["model"]["engine"] == "saliency" and Path(det["model"]["file"]).name == "defects_v1.npz"
+    reg = json.loads((store.report_dir / "defects.json").read_text())
+    assert reg["traceability"]["detector_engine"] == "saliency"
+    assert "saliency engine, model defects_v1.npz v1" in (store.report_dir / "report.html").read_text()
+    # AND back to onnx redoes them again
+    assert [a for _, a, _ in plan(store, _cfg(src))] == ["n/a", "skip", "run", "run"]
+
+
+def test_run_recorded_before_engines_existed_redetects(done_run, tmp_path):
+    # GIVEN a run.json whose detect options have no engine (runs made when only saliency existed)
+    root, src, _ = done_run
+    run = tmp_path / "run"
+    shutil.copytree(root / "run", run)
+    store = RunStore(run)
+    doc = json.loads(store.run_json.read_text())
+    del doc["steps"]["detect"]["options"]["detect"]["engine"]
+    store.run_json.write_text(json.dumps(doc))
+    # THEN the default engine's run does not take those detections for its own
+    steps = plan(store, _cfg(src))
+    assert [a for _, a, _ in steps] == ["n/a", "skip", "run", "run"] and steps[2][2] == "options changed"
+
+
+def test_run_command_engine_option(done_run, tmp_path):
+    root, src, _ = done_run
+    run = tmp_path / "run"
+    shutil.copytree(root / "run", run)
+    # WHEN run without --engine on a run made with the onnx engine THEN detect is not redone
+    res = runner.invoke(app, _cli_args(src, run))
+    assert res.exit_code == 0, res.output
+    assert "detect skipped" in res.output and "report ran" in res.output
+    # WHEN --engine saliency THEN detect runs with it
+    res = runner.invoke(app, _cli_args(src, run) + ["--engine", "saliency"])
+    assert res.exit_code == 0, res.output
+    assert "detect ran" in res.output
+    assert json.loads((run / "detect" / "defects.json").read_text())["model"]["engine"] == "saliency"
+    # WHEN the engine cannot load THEN one line, exit 2, before any step
+    res = runner.invoke(app, _cli_args(src, tmp_path / "o") + ["--engine", "paint"])
+    assert res.exit_code == 2 and "paint" in res.output and not (tmp_path / "o").exists()
+
+
+def test_run_without_onnxruntime_fails_first_and_saliency_runs(done_run, tmp_path, monkeypatch):
+    root, src, _ = done_run
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)
+    res = runner.invoke(app, _cli_args(src, tmp_path / "o"))
+    lines = [ln for ln in res.output.strip().splitlines() if ln]
+    assert res.exit_code == 2 and len(lines) == 1 and "onnxruntime: not installed" in lines[0] and "--engine saliency" in lines[0]
+    assert not (tmp_path / "o").exists()  # checked before the mosaic is computed
+    run = tmp_path / "run"
+    shutil.copytree(root / "run", run)
+    res = runner.invoke(app, _cli_args(src, run) + ["--engine", "saliency"])
+    assert res.exit_code == 0 and "detect ran" in res.output, res.output
 
 
 def test_rerun_from_and_force_and_missing_output(done_run):

@@ -1,4 +1,5 @@
-"""``inspect-pipe detect`` and ``inspect-pipe detect train`` end to end, including bad input."""
+"""``inspect-pipe detect`` and ``inspect-pipe detect train`` end to end, including bad input.
+Tests of the saliency engine's own rules name ``--engine saliency`` (the default is onnx)."""
 
 import json
 import shutil
@@ -67,7 +68,7 @@ def test_folder_with_bad_files_writes_the_good_ones_and_exits_2(tmp_path):
 
 
 def test_missing_model_empty_folder_and_grey_corrosion_exit_2(tmp_path):
-    r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o", "--model", tmp_path / "none.npz")
+    r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o", "--engine", "saliency", "--model", tmp_path / "none.npz")
     assert r.exit_code == 2 and "none.npz" in r.output and "not found" in r.output
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -77,9 +78,9 @@ def test_missing_model_empty_folder_and_grey_corrosion_exit_2(tmp_path):
     assert r.exit_code == 2 and "nope.png" in r.output
     grey = tmp_path / "grey.png"
     cv2.imwrite(str(grey), cv2.imread(str(FIX / "crackforest_004.jpg"), cv2.IMREAD_GRAYSCALE))
-    r = _invoke("detect", grey, "-o", tmp_path / "o4", "--kind", "corrosion")
+    r = _invoke("detect", grey, "-o", tmp_path / "o4", "--kind", "corrosion", "--engine", "saliency")
     assert r.exit_code == 2 and "grey.png" in r.output and "colour" in r.output
-    r = _invoke("detect", grey, "-o", tmp_path / "o5", "--kind", "crack")
+    r = _invoke("detect", grey, "-o", tmp_path / "o5", "--kind", "crack", "--engine", "saliency")
     assert r.exit_code == 0, r.output
 
 
@@ -103,7 +104,7 @@ def test_train_on_a_labelled_folder_then_detect_with_it(tmp_path):
     m = load_model(model)
     assert m.version == "7" and m.meta["training_data"]["crack"]["set"] == "mycracks"
     assert all(split_of("mycracks", s) == "train" for s in m.meta["training_data"]["crack"]["images"])
-    r = _invoke("detect", data / "images", "-o", tmp_path / "det", "--model", model, "--kind", "crack")
+    r = _invoke("detect", data / "images", "-o", tmp_path / "det", "--engine", "saliency", "--model", model, "--kind", "crack")
     assert r.exit_code == 0, r.output
     assert len(list((tmp_path / "det").glob("*.mask.png"))) == 8
 

@@ -199,7 +199,7 @@ def test_bad_model_exits_2_with_one_line_and_saliency_still_works(tmp_path, monk
     assert r.exit_code == 2
     lines = [ln for ln in r.output.strip().splitlines() if ln]
     assert len(lines) == 1 and lines[0].startswith("error:") and words in lines[0] and str(bad) in lines[0], r.output
-    # the default engine does not touch the network file at all
+    # the saliency engine does not touch the network file at all
     monkeypatch.setattr(od, "default_onnx_path", lambda: bad)
     r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o2", "--engine", "saliency")
     assert r.exit_code == 0, r.output
