@@ -1,6 +1,7 @@
 """The detection engines on every labelled set in one run: the saliency engine (Bayes on
-saliency features, the default), the learned network on onnxruntime (``--engine onnx``) and
-their per-class weighted mean (``--engine fused``, weights fitted on the validation images);
+saliency features, ``--engine saliency``), the learned network on onnxruntime (``--engine onnx``,
+the default since it beat saliency on every set) and their per-class weighted mean
+(``--engine fused``, weights fitted on the validation images);
 speed per 752 x 480 frame on one core for each.
 
     python -m bench --only detect_onnx
@@ -103,7 +104,8 @@ def _speed(fn, img, n=10) -> tuple[float, float]:
 
 
 def _cli_default() -> str:
-    """The engine `inspect-pipe detect` uses without --engine (read from the command, not assumed)."""
+    """The engine `inspect-pipe detect` uses without --engine (read from the command, not assumed;
+    `run` and `demo` take the same default, ``saliency_defects.DEFAULT_ENGINE``, a test checks)."""
     import inspect
 
     from cli.detect import run as detect_run
@@ -166,8 +168,14 @@ def run(data: Path) -> str:
     fig = {"crack": "F", "corrosion": "F", "surface": "Fbeta"}
     fused_best = [res[x]["fused"][fig[x]] > max(res[x]["saliency"][fig[x]], res[x]["onnx"][fig[x]]) for x in fig]
     wts = ", ".join(f"{x} {fus.weights[x]:.1f} / {fus.thresholds_u8[x]}" for x in ("crack", "corrosion", "surface"))
+    default = _cli_default()
+
+    def _d(name: str) -> str:
+        return ", the default" if name == default else ""
+
     lines = [
-        "## Detection engines: saliency (default), learned network on onnxruntime (`--engine onnx`), fused (`--engine fused`)",
+        (f"## Detection engines: learned network on onnxruntime (`--engine onnx`{_d('onnx')}), saliency "
+         f"(`--engine saliency`{_d('saliency')}), fused (`--engine fused`{_d('fused')})"),
         "",
         (f"Network `{default_onnx_path().name}` ({meta['training']['n_params']} parameters, half-resolution U-Net, best "
          f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}), "
@@ -207,10 +215,11 @@ def run(data: Path) -> str:
          f"| {o_med:.0f} ms (min {o_min:.0f}) | {f_med:.0f} ms (min {f_min:.0f}) | onnx <= 50 ms |"),
         f"| same frame in a batch of 8 (4 per session call), per frame | | {b_med / 8:.0f} ms | | |",
         "",
-        (f"Default engine of `inspect-pipe detect`: **{_cli_default()}**. The network beats saliency at the operating "
-         f"point on {sum(better)} of 3 sets" + (" (the condition for making it the default; switching the "
-                                                "default is a separate change)." if all(better) else
-                                                "; it would be the default only if it did on every set.")),
+        (f"Default engine of `inspect-pipe detect`, `run` and `demo`: **{default}**. The network beats saliency at the "
+         f"operating point on {sum(better)} of 3 sets" + (
+             "; it would be the default only if it did on every set." if not all(better) else
+             " (the condition for making it the default, which it is)." if default == "onnx" else
+             " (the condition for making it the default; the default has not been switched).")),
         "",
         (f"Fused (`--engine fused`, `{default_fused_path().name}`): per class p = w * p_saliency + (1 - w) * p_onnx, "
          f"w and threshold fitted on the network's validation images only (w / threshold: {wts}). "

@@ -138,6 +138,7 @@ def run(data: Path) -> str:
         run2 = tmp / "run200b"
         reg = read_register(run2 / "report" / "defects.json")
         det = compare_with_truth(reg, wall.truth)
+        engine = json.loads((run2 / "detect" / "defects.json").read_text())["model"]["engine"]
         tr_dir = _truth_run(run2, wall, sweep)
         rep_t = report_from_run(RunStore(tr_dir), tr_dir / "report", ReportParams(pdf=False))
         geo = compare_with_truth(rep_t.defects, wall.truth)
@@ -168,7 +169,7 @@ def run(data: Path) -> str:
             w(f"| geolocation: corrosion area error median / max | {100 * np.median(ae):.1f} / {100 * max(ae):.1f} % | <= 15 % |\n")
         w(f"| coverage: imaged fraction, mosaic vs true poses | {100 * est:.1f} % vs {100 * true:.1f} % (error {100 * abs(est - true):.2f} % of the wall) | <= 2 % |\n")
         rows, ce, ae = errs(det)
-        w(f"| detector register: known defects found | {det['matched']}/{det['truth']} ({det['false_alarms']} other entries) | |\n")
+        w(f"| detector register ({engine} engine): known defects found | {det['matched']}/{det['truth']} ({det['false_alarms']} other entries) | |\n")
         if ce:
             w(f"| detector register: centroid error median | {100 * np.median(ce):.1f} cm | |\n")
         if ae:
@@ -208,7 +209,9 @@ def run(data: Path) -> str:
         w(f"| same 8 sweeps, one process using every core (no Dask) | {nd:.1f} s (Dask 2 workers take {d2 / nd:.2f}x its time) | |\n")
         w("\nGeolocation isolates the mosaic and wall map: the true masks are carried into the mosaic through "
           "each frame's exact homography and located by the report like detections. The detector rows include "
-          "the detector's own errors (it over-grows rust borders; cracks were learned on asphalt). This machine's "
+          f"the detector's own errors (detect step: the {engine} engine, the default of `run`"
+          + ("; it over-grows rust borders, and its cracks were learned on asphalt" if engine == "saliency" else "")
+          + "). This machine's "
           "2 cores are shared with other benchmarks, so timings and the Dask speed-up are upper and lower bounds. "
           "Known defects only partly in view are compared with their whole true outline, which inflates the "
           "worst centroid and area errors.\n")
