@@ -4,8 +4,9 @@ Speeds and height are built from whichever sensors are valid (Table I); optical-
 always preferred over range derivatives. Range derivatives come from a small observer that
 propagates with the autopilot's IMU acceleration between the (10 Hz, delayed) range samples, so a
 derivative is neither noisy nor late. The alarm modes (-1, -2) fill the missing state with a
-positive vertical speed and zero horizontal speed, so that the speed controllers make the vehicle
-descend.
+positive vertical speed, so that the speed controllers make the vehicle descend; their horizontal
+speed, zero in the paper, is here the last measured one carried on with the IMU and corrected by
+the horizontal sonars' range rates where they hear a wall (see ``_range_rate_speeds``).
 """
 
 from __future__ import annotations
@@ -218,6 +219,8 @@ class MAVStateUpdater:
         self._v_prev = (0.0, 0.0)  # last horizontal speed estimate (the stuck-sonar check runs first)
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
+        self._range_rates: dict[str, float | None] = {"front": None, "left": None, "right": None}
+        self._yaw_hist: list[tuple[float, float]] = []  # (t, heading) over the last slope window
 
     def status(self, now: float, m: Measurements) -> SensorStatus:
         p = self.p
@@ -239,6 +242,13 @@ class MAVStateUpdater:
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
         p = self.p
         m = self._drop_stuck_sonars(m)
+        self._feed_slopes(now, m)
+        if m.imu is not None and m.imu.yaw_rad is not None:
+            self._yaw = m.imu.yaw_rad
+            hist = self._yaw_hist
+            hist.append((now, self._yaw))
+            while now - hist[0][0] > self._slopes["front"].window_s:
+                hist.pop(0)
         status = self.status(now, m)
         mode = select_mode(status)
         imu = m.imu
@@ -271,9 +281,8 @@ class MAVStateUpdater:
         else:
             k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
             vx, vy = (self._dr_v[0] + ax * dt) * k, (self._dr_v[1] + ay * dt) * k
+            vx, vy = self._range_rate_speeds(now, dt, vx, vy)
         self._dr_v = (vx, vy)
-        if imu is not None and imu.yaw_rad is not None:
-            self._yaw = imu.yaw_rad
         if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw)
 
@@ -334,15 +343,7 @@ class MAVStateUpdater:
         def stale(r: RangeReading | None) -> bool:
             return r is None or now - r.stamp_s > p.sonar_timeout_s
 
-        closing: dict[str, float | None] = {}
-        for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
-            slope = self._slopes[name]
-            if r is not None and r.stamp_s != self._slope_stamps[name]:
-                self._slope_stamps[name] = r.stamp_s
-                valid = r.range_m is not None and r.range_m <= p.sonar_max_range_m
-                slope.add(r.stamp_s, r.range_m if valid else None)
-            rate = slope.rate(now) if not stale(r) else None
-            closing[name] = None if rate is None else -rate
+        closing = {name: None if rate is None else -rate for name, rate in self._range_rates.items()}
 
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
         left, right = at_now(m.left_sonar, est.vy_m_s), at_now(m.right_sonar, -est.vy_m_s)
@@ -368,6 +369,55 @@ class MAVStateUpdater:
             left_closing_m_s=closing["left"],
             right_closing_m_s=closing["right"],
         )
+
+    def _feed_slopes(self, now: float, m: Measurements) -> None:
+        """Each horizontal sonar's range rate (least-squares slope of its last samples), or None."""
+        p = self.p
+        rates: dict[str, float | None] = {}
+        for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
+            slope = self._slopes[name]
+            if r is not None and r.stamp_s != self._slope_stamps[name]:
+                self._slope_stamps[name] = r.stamp_s
+                valid = r.range_m is not None and r.range_m <= p.sonar_max_range_m
+                slope.add(r.stamp_s, r.range_m if valid else None)
+            fresh = r is not None and now - r.stamp_s <= p.sonar_timeout_s
+            rates[name] = slope.rate(now) if fresh else None
+        self._range_rates = rates
+
+    def _range_rate_speeds(self, now: float, dt: float, vx: float, vy: float) -> tuple[float, float]:
+        """Alarm modes: no flow measures the horizontal speed, and the IMU-carried one (``vx``,
+        ``vy``) drifts with the accelerometer's bias, so a station-keeping loop lets the vehicle
+        creep away (safety campaign: bottom flow quality 0 during a link loss, 0.55 m in 4 s
+        beside walls the side sonars heard 2.6-3.9 m away). Beyond Table I, the horizontal
+        sonars' range rates then measure the speed along their axes (a wall ahead closing at
+        1 m/s: vx = +1), and the carried speed follows them with ``alarm_slope_tau_s``. A rate
+        far from the carried speed (``alarm_slope_gate_m_s``: a new surface entering the beam),
+        or left and right sonars disagreeing, is not used; nor while turning (the range to a
+        wall then changes without any translation)."""
+        p = self.p
+        if self._turning(now):
+            return vx, vy
+        r = self._range_rates
+        k = min(1.0, dt / p.alarm_slope_tau_s)
+        gate = p.alarm_slope_gate_m_s
+
+        def follow(v: float, measured: list[float]) -> float:
+            if not measured or max(measured) - min(measured) > 0.5 * gate:
+                return v
+            s = sum(measured) / len(measured)
+            return v + (s - v) * k if abs(s - v) <= gate else v
+
+        sx = [-r["front"]] if r["front"] is not None else []
+        sy = [x for x in (None if r["left"] is None else -r["left"], r["right"]) if x is not None]
+        return follow(vx, sx), follow(vy, sy)
+
+    def _turning(self, now: float) -> bool:
+        """The heading turned more than ``alarm_slope_max_turn_rad`` over the last slope window
+        (or no heading is known, or none recently)."""
+        hist = self._yaw_hist
+        if self._yaw is None or not hist or now - hist[-1][0] > self.p.sonar_timeout_s:
+            return True
+        return abs(math.remainder(hist[-1][1] - hist[0][1], math.tau)) > self.p.alarm_slope_max_turn_rad
 
     def _drop_stuck_sonars(self, m: Measurements) -> Measurements:
         """A horizontal sonar repeating its range bit for bit while the vehicle has moved along

@@ -183,3 +183,46 @@ def test_a_near_zero_flow_repeated_while_the_imu_accelerates_is_stuck():
     # THEN once the IMU's speed change passes 0.15 m/s the front flow is dropped: mode 0
     assert modes[2] == EstimationMode.BOTTOM_FRONT
     assert modes[-1] == EstimationMode.BOTTOM
+
+
+def _alarm_meas(t, *, left, right, front=None, yaw=0.0):
+    """Mode -1: no flow, only the TeraRanger below and the three horizontal sonars (10 Hz)."""
+    ts = round(t, 1)
+    return Measurements(
+        bottom_tof=RangeReading(t, 1.5),
+        front_sonar=None if front is None else RangeReading(ts, front(ts)),
+        left_sonar=RangeReading(ts, left(ts)),
+        right_sonar=RangeReading(ts, right(ts)),
+        imu=ImuReading(t, 0.0, 0.0, 0.0, yaw(t) if callable(yaw) else yaw),
+    )
+
+
+def _fly_alarm(seconds, **kw):
+    upd, est = MAVStateUpdater(), None
+    for k in range(int(seconds / 0.02)):
+        t = 1.0 + 0.02 * k
+        est = upd.update(t, _alarm_meas(t, **kw))[0]
+    return est
+
+
+def test_alarm_mode_horizontal_speed_follows_the_side_sonars_range_rates():
+    # GIVEN mode -1 (bottom flow quality 0, no front flow) while the vehicle drifts right at
+    # 0.2 m/s between walls 2.6 m (left) and 3.9 m (right) away, and closes on a wall ahead at 0.1 m/s,
+    # with an accelerometer that feels nothing (its carried speed alone says 0)
+    est = _fly_alarm(3.0, left=lambda t: 2.6 + 0.2 * t, right=lambda t: 3.9 - 0.2 * t, front=lambda t: 4.0 - 0.1 * t)
+    # THEN the speed is measured by the range rates: vy = -0.2 (right), vx = +0.1
+    assert est.mode == EstimationMode.ALARM_TOF
+    assert est.vy_m_s == pytest.approx(-0.2, abs=0.02)
+    assert est.vx_m_s == pytest.approx(0.1, abs=0.02)
+
+
+def test_alarm_mode_range_rates_are_not_used_while_turning_or_across_a_new_surface():
+    # GIVEN the same drift while the heading turns at 0.3 rad/s: range changes are not translation
+    turning = _fly_alarm(3.0, left=lambda t: 2.6 + 0.2 * t, right=lambda t: 3.9 - 0.2 * t, yaw=lambda t: 0.3 * t)
+    assert turning.vy_m_s == pytest.approx(0.0, abs=0.01)
+    # AND left and right disagreeing (one of them hears a box sliding into its beam) say nothing
+    disagree = _fly_alarm(3.0, left=lambda t: 2.6 + 0.2 * t, right=lambda t: 2.9 + 0.3 * t)
+    assert disagree.vy_m_s == pytest.approx(0.0, abs=0.01)
+    # AND a range that steps by a metre (a new surface) is gated out, not taken as a 2 m/s speed
+    step = _fly_alarm(2.0, left=lambda t: 2.6 if t < 2.0 else 1.6, right=lambda t: 3.9 if t < 2.0 else 4.8)
+    assert abs(step.vy_m_s) < 0.05
