@@ -102,8 +102,12 @@ class OnboardStack:
         # hold the hover trim, is what brings the vehicle down (Table I); no height hold.
         alarm = est.mode < 0
         names = beh.behaviors
+        imu = measurements.imu
+        accel = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else None
         if state is FlightState.LANDED:
             ctrl.reset()
+            if self._last_thrust == 0.0:
+                ctrl.calibrate_at_rest(accel)
             cmd, setpoint, names = HOVER, AttitudeSetpoint(), ()
         elif state is FlightState.TAKING_OFF:
             cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)
@@ -134,12 +138,14 @@ class OnboardStack:
             # speed error, so the vertical integrator keeps working: frozen, it could not make up
             # a thrust loss that began just before (safety campaign: battery sag, then every range
             # sensor lost: sank faster and faster onto a coaming). XY integrators stay frozen.
-            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm)
+            setpoint = ctrl.update(
+                cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm, accel_measured=accel
+            )
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
             vz = 0.0 if alarm else -fm.descend_speed_m_s
             cmd = SpeedCommand(beh.command.vx_m_s, beh.command.vy_m_s, vz, beh.command.yaw_rate_rad_s)
-            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm)
+            setpoint = ctrl.update(cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm, accel_measured=accel)
         else:  # LANDING
             cmd = SpeedCommand(0.0, 0.0, 0.0 if alarm else -fm.landing_speed_m_s, 0.0)
             setpoint = ctrl.update(

@@ -42,6 +42,15 @@ class EstimationParams:
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
+    alarm_slope_tau_s: float = param(
+        0.3, 0.05, 5.0, "s", "alarm modes: the carried speed follows a horizontal sonar's range rate at this time constant"
+    )
+    alarm_slope_gate_m_s: float = param(
+        0.5, 0.05, 3.0, "m/s", "alarm modes: a range rate further than this from the carried speed is another surface's"
+    )
+    alarm_slope_max_turn_rad: float = param(
+        0.02, 0.0, 0.5, "rad", "alarm modes: range rates are not used while the heading turns more than this in their window"
+    )
     memory_keep_s: float = param(8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long (0: no memory)")
     memory_keep_travel_m: float = param(2.0, 0.1, 20.0, "m", "obstacle memory: or after this much travel (odometry drift)")
     memory_max_angle_deg: float = param(60.0, 0.0, 89.0, "deg", "obstacle memory: surfaces facing an axis within this angle count for it")
@@ -128,6 +137,9 @@ class ControlParams:
     vz_unwind_threshold_m_s: float = param(
         0.15, 0.0, 1.0, "m/s", "landing: the vertical integrator unwinds fast against a speed error above this"
     )
+    speed_integrate_band_m_s: float = param(
+        0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
+    )
     speed_unwind_hold_m_s: float = param(0.05, 0.0, 1.0, "m/s", "fast unwinding only while the speed command is within this of 0")
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
@@ -142,6 +154,27 @@ class ControlParams:
     integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2")
     vertical_integral_limit_m_s2: float = param(
         6.0, 0.0, 10.0, "m/s^2", "vertical trim range: +-30 % mass or thrust needs ~4.2 m/s^2"
+    )
+    accel_observer_tau_s: float = param(
+        0.25, 0.0, 5.0, "s", "vertical disturbance observer (IMU): time constant (0: off)"
+    )
+    accel_observer_limit_m_s2: float = param(
+        3.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up"
+    )
+    accel_observer_xy_tau_s: float = param(
+        0.5, 0.0, 5.0, "s", "horizontal disturbance observers: time constant (0: off)"
+    )
+    accel_observer_xy_limit_m_s2: float = param(
+        1.5, 0.0, 10.0, "m/s^2", "horizontal disturbance observers: largest wind force it makes up (0: off)"
+    )
+    accel_observer_xy_steady_s: float = param(
+        4.0, 0.1, 60.0, "s", "horizontal disturbance observers: what persists longer than this is left to the speed integrators"
+    )
+    accel_observer_lag_s: float = param(
+        0.06, 0.0, 1.0, "s", "disturbance observers: attitude and motor lag between set-point and acceleration"
+    )
+    accel_observer_drag_1_s: float = param(
+        0.4, 0.0, 5.0, "1/s", "disturbance observers: nominal rotor drag deceleration per m/s of speed"
     )
     max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
     max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")

@@ -72,14 +72,20 @@ def test_bad_faults_are_refused(fault, field):
 def test_gust_pushes_and_mass_error_acts():
     from inspect_pipe.flight import run_scenario
 
-    def drift(doc):
-        pos = []
-        run_scenario(parse_scenario(doc), on_tick=lambda r: pos.append(r.pos_true))
-        return pos
+    from inspect_pipe.flight_stack.params import ControlParams, StackParams
 
-    calm = drift(BASE)
-    windy = drift({**BASE, "faults": [{"t": 5, "duration_s": 3, "fault": "gust", "wind_m_s": [2.0, 0, 0]}]})
-    assert max(p[0] for p in windy) - max(p[0] for p in calm) > 0.05  # the gust moved it downwind
+    def drift(doc, params=None):
+        pos = []
+        run_scenario(parse_scenario(doc), params=params, on_tick=lambda r: pos.append(r.pos_true))
+        return max(p[0] for p in pos)
+
+    gust = {**BASE, "faults": [{"t": 5, "duration_s": 3, "fault": "gust", "wind_m_s": [2.0, 0, 0]}]}
+    # With the wind-rejecting disturbance observer off, the gust moves the vehicle downwind
+    no_observer = StackParams(control=ControlParams(accel_observer_xy_tau_s=0.0))
+    pushed = drift(gust, no_observer) - drift(BASE, no_observer)
+    assert pushed > 0.05
+    # AND with it on (the default), the vehicle gives way less than half as far
+    assert drift(gust) - drift(BASE) < 0.5 * pushed
 
 
 def _thrust_and_height(doc):
