@@ -238,7 +238,6 @@ class FlightController:
         drag = p.accel_observer_drag_1_s
         ax += self.obs_x.update(meas[0], dt, nominal=-drag * est.vx_m_s, speed=True)
         ay += self.obs_y.update(meas[1], dt, nominal=-drag * est.vy_m_s, speed=True)
-        az += self.obs_z.update(meas[2], dt)
 
         amax = G * math.tan(p.max_tilt_rad)
         ax = max(-amax, min(amax, ax))
@@ -246,6 +245,8 @@ class FlightController:
         # The acceleration limit applies around the trim (the integrator), so a vehicle that needs
         # a large trim to hover keeps its full authority to climb and descend.
         az = trim + max(-p.max_vertical_accel_m_s2, min(p.max_vertical_accel_m_s2, az - trim))
+        # The observed shortfall is trim too: outside that limit.
+        az += self.obs_z.update(meas[2], dt)
         pitch = math.atan2(ax, G)
         roll = -math.atan2(ay, G)
         tilt = math.cos(roll) * math.cos(pitch)

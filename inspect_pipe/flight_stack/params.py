@@ -159,7 +159,7 @@ class ControlParams:
         0.25, 0.0, 5.0, "s", "vertical disturbance observer (IMU): time constant (0: off)"
     )
     accel_observer_limit_m_s2: float = param(
-        3.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up"
+        6.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up (as the vertical trim)"
     )
     accel_observer_xy_tau_s: float = param(
         0.5, 0.0, 5.0, "s", "horizontal disturbance observers: time constant (0: off)"
