@@ -29,9 +29,10 @@ class PID:
         # vehicle back from the wall after a stop.
         self.integrate_band = integrate_band
         # Fast unwinding: an integral that pushes against a large error (|error| > threshold) is
-        # left over from a disturbance that has gone, e.g. the tilt that held the vehicle against a
-        # gust; it unwinds ``unwind_factor`` times faster. Small errors (noise around a steady
-        # trim) integrate at ki both ways, so the steady trim is not biased.
+        # left over from a disturbance that has gone, e.g. the thrust a battery sag needed when it
+        # ends at touchdown; it unwinds ``unwind_factor`` times faster. Small errors integrate at
+        # ki both ways. (On the XY speeds, where the flow's noise crosses any such threshold, it
+        # kept the integrators from holding a trim: 0.24 m of drift in a Fig. 5 hover.)
         self.unwind_factor, self.unwind_threshold = unwind_factor, unwind_threshold
         self.integral = 0.0
         self._prev_error: float | None = None
@@ -68,13 +69,9 @@ class AccelObserver:
     into a pillar's corner (safety campaign, seed 2). What it does not make up (the IMU's bias,
     beyond ``limit``) is left to the integrators."""
 
-    def __init__(self, *, tau_s: float, lag_s: float, limit: float, steady_tau_s: float) -> None:
-        self.tau_s, self.lag_s, self.limit, self.steady_tau_s = tau_s, lag_s, limit, steady_tau_s
+    def __init__(self, *, tau_s: float, lag_s: float, limit: float) -> None:
+        self.tau_s, self.lag_s, self.limit = tau_s, lag_s, limit
         self.value = 0.0  # m/s^2 missing from the nominal response
-        # Its slow part (a heavier vehicle, the accelerometer's residual bias) is handed over to
-        # the loops' integrators: the observer answers changes only. Answering the bias too, it
-        # pushed a hovering vehicle with it (0.24 m of drift in a minute, Fig. 5 mode 3).
-        self.steady = 0.0
         self._expected: float | None = None  # the applied acceleration through the lag
         self._applied = 0.0
         self._nominal = 0.0
@@ -84,7 +81,7 @@ class AccelObserver:
         self._bias_n = 0
 
     def reset(self) -> None:
-        self.value, self._expected, self._applied, self._nominal, self.steady = 0.0, None, 0.0, 0.0, 0.0
+        self.value, self._expected, self._applied, self._nominal = 0.0, None, 0.0, 0.0
 
     def calibrate(self, measured: float | None) -> None:
         """One IMU reading taken at rest (landed): running mean of the bias, over the last ~100."""
@@ -111,8 +108,7 @@ class AccelObserver:
         if measured is not None and prev is not None:
             d = self.value + (self._expected + nominal - (measured - self.bias) - self.value) * min(1.0, dt / self.tau_s)
             self.value = max(-self.limit, min(self.limit, d))
-            self.steady += (self.value - self.steady) * min(1.0, dt / self.steady_tau_s)  # inf: never
-        return self.value - self.steady
+        return self.value
 
 
 class VerticalMode(enum.Enum):
@@ -126,16 +122,13 @@ class FlightController:
     def __init__(self, params: ControlParams | None = None) -> None:
         p = self.p = params or ControlParams()
         lim = p.integral_limit_m_s2
-        unwind = dict(
-            unwind_factor=p.speed_unwind_factor, unwind_threshold=p.speed_unwind_threshold_m_s,
-            integrate_band=p.speed_integrate_band_m_s,
-        )
-        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
-        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, integral_limit=lim, **unwind)
+        xy = dict(integral_limit=lim, integrate_band=p.speed_integrate_band_m_s)
+        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, **xy)
+        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, **xy)
         vlim = p.vertical_integral_limit_m_s2
         self.pid_vz = PID(
             p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
-            unwind_factor=p.speed_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
+            unwind_factor=p.vz_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
         )
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
@@ -143,12 +136,10 @@ class FlightController:
         self._last_az = 0.0  # the height loop's last vertical acceleration command
         # Disturbance observers (m/s^2 the IMU shows missing): thrust shortfall, wind.
         lag = p.accel_observer_lag_s
-        xy = dict(tau_s=p.accel_observer_xy_tau_s, limit=p.accel_observer_xy_limit_m_s2, steady_tau_s=p.accel_observer_xy_steady_s)
-        self.obs_x = AccelObserver(lag_s=lag, **xy)
-        self.obs_y = AccelObserver(lag_s=lag, **xy)
-        # Vertically the whole shortfall stays with the observer: the height loop integrates only
-        # near its reference, and handing a battery sag over to it doubled the sink.
-        self.obs_z = AccelObserver(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_limit_m_s2, lag_s=lag, steady_tau_s=math.inf)
+        obs_xy = dict(tau_s=p.accel_observer_xy_tau_s, limit=p.accel_observer_xy_limit_m_s2, lag_s=lag)
+        self.obs_x = AccelObserver(**obs_xy)
+        self.obs_y = AccelObserver(**obs_xy)
+        self.obs_z = AccelObserver(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_limit_m_s2, lag_s=lag)
 
     def reset(self) -> None:
         for pid in (self.pid_vx, self.pid_vy, self.pid_vz, self.pid_height):
@@ -191,12 +182,8 @@ class FlightController:
         # crept the vehicle past the stop line at a wall (safety campaign: link-loss "hover"
         # 2 s late while the repulsion pushed it back out, overshoot).
         ff = p.speed_drag_ff_1_s
-        # Fast unwinding only while holding (command ~0: a stop, a hover): a gust's leftover trim
-        # then carries the vehicle past a stop line. While the operator's command changes
-        # (attenuation near a wall) the integrator tracks at its own pace, as in the paper.
-        hold = p.speed_unwind_hold_m_s
-        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy, unwind=abs(cmd.vx_m_s) <= hold)
-        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy, unwind=abs(cmd.vy_m_s) <= hold)
+        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy)
+        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy)
         ax += ff * cmd.vx_m_s
         ay += ff * cmd.vy_m_s
         mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED

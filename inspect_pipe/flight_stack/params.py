@@ -37,7 +37,13 @@ class EstimationParams:
     flow_latency_s: float = param(0.02, 0.0, 0.5, "s")
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s")
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
-    height_jump_m: float = param(0.25, 0.05, 2.0, "m", "range change not explained by vertical motion")
+    height_jump_m: float = param(0.15, 0.05, 2.0, "m", "range change not explained by vertical motion: a floor step")
+    height_step_min_m: float = param(
+        0.4, 0.0, 2.0, "m", "no floor step is taken below this height (the range sensors clamp at their minimum)"
+    )
+    height_step_settle_samples: int = param(
+        2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
+    )
     alarm_climb_m_s: float = param(0.2, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes: the steady alarm descent speed")
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
@@ -129,18 +135,16 @@ class ControlParams:
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
     speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2")
     speed_kd: float = param(0.0, 0.0, 5.0, "1")
-    speed_unwind_factor: float = param(
-        5.0, 1.0, 10.0, "1", "XY speed integrator: gain multiplier while it unwinds against a speed error "
-        "above speed_unwind_threshold_m_s during a hold (the trim a gust left behind)"
+    vz_unwind_factor: float = param(
+        5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
+        "speed error above vz_unwind_threshold_m_s (the trim a battery sag left behind)"
     )
-    speed_unwind_threshold_m_s: float = param(0.08, 0.0, 1.0, "m/s")
     vz_unwind_threshold_m_s: float = param(
         0.15, 0.0, 1.0, "m/s", "landing: the vertical integrator unwinds fast against a speed error above this"
     )
     speed_integrate_band_m_s: float = param(
         0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
     )
-    speed_unwind_hold_m_s: float = param(0.05, 0.0, 1.0, "m/s", "fast unwinding only while the speed command is within this of 0")
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
     )
@@ -162,13 +166,10 @@ class ControlParams:
         6.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up (as the vertical trim)"
     )
     accel_observer_xy_tau_s: float = param(
-        0.5, 0.0, 5.0, "s", "horizontal disturbance observers: time constant (0: off)"
+        0.25, 0.0, 5.0, "s", "horizontal disturbance observers: time constant (0: off)"
     )
     accel_observer_xy_limit_m_s2: float = param(
         1.5, 0.0, 10.0, "m/s^2", "horizontal disturbance observers: largest wind force it makes up (0: off)"
-    )
-    accel_observer_xy_steady_s: float = param(
-        4.0, 0.1, 60.0, "s", "horizontal disturbance observers: what persists longer than this is left to the speed integrators"
     )
     accel_observer_lag_s: float = param(
         0.06, 0.0, 1.0, "s", "disturbance observers: attitude and motor lag between set-point and acceleration"

@@ -34,7 +34,7 @@ def test_overshoot_regression_stays_within_the_goal(seed, index, fname, before, 
     assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     # GIVEN a forward push held while yawing (the wall heard ever more obliquely by both sonars),
     # a gust the speed integrator held against ending near a wall, or a stuck sonar
-    # WHEN ours flies it THEN the oblique-wall fit / fast unwinding / stuck-sonar check keep the
+    # WHEN ours flies it THEN the oblique-wall fit / disturbance observers / stuck-sonar check keep the
     # vehicle within the goal of the 1 m line, where it used to pass it by ``before``
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided

@@ -161,11 +161,11 @@ def test_vertical_disturbance_observer_holds_height_through_a_battery_sag():
     assert without > 0.3
 
 
-def test_disturbance_observer_learns_the_accelerometer_bias_on_the_floor_and_hands_steady_parts_over():
+def test_disturbance_observer_learns_the_accelerometer_bias_on_the_floor_and_makes_up_a_push():
     from inspect_pipe.flight_stack.control import AccelObserver
 
     # GIVEN an accelerometer reading +0.05 m/s^2 too much, learnt at rest on the floor
-    obs = AccelObserver(tau_s=0.5, lag_s=0.06, limit=1.5, steady_tau_s=4.0)
+    obs = AccelObserver(tau_s=0.5, lag_s=0.06, limit=1.5)
     for _ in range(50):
         obs.calibrate(0.05)
     # WHEN hovering with nothing asked and nothing happening THEN the observer answers nothing
@@ -173,11 +173,14 @@ def test_disturbance_observer_learns_the_accelerometer_bias_on_the_floor_and_han
         obs.applied(0.0)
         out = obs.update(0.05, 0.02)
     assert abs(out) < 1e-6
-    # AND a push of 0.5 m/s^2 (wind) is mostly made up within a second ...
+    # AND a push of 0.5 m/s^2 (wind) is made up: 86 % within a second, all of it after three
     outs = []
-    for _ in range(1000):
+    for _ in range(150):
         obs.applied(0.0)
         outs.append(obs.update(0.05 - 0.5, 0.02))
-    assert outs[50] > 0.3 and max(outs) > 0.35
-    # ... and, persisting, handed over to the integrators (after 20 s, 1 % is left)
-    assert abs(outs[-1]) < 0.01
+    assert 0.4 < outs[49] < 0.45 and abs(outs[-1] - 0.5) < 0.01
+    # AND never more than its limit
+    for _ in range(100):
+        obs.applied(0.0)
+        out = obs.update(0.05 - 5.0, 0.02)
+    assert out == 1.5
