@@ -226,3 +226,47 @@ def test_alarm_mode_range_rates_are_not_used_while_turning_or_across_a_new_surfa
     # AND a range that steps by a metre (a new surface) is gated out, not taken as a 2 m/s speed
     step = _fly_alarm(2.0, left=lambda t: 2.6 if t < 2.0 else 1.6, right=lambda t: 3.9 if t < 2.0 else 4.8)
     assert abs(step.vy_m_s) < 0.05
+
+
+def test_a_stuck_flow_stays_dropped_while_it_repeats_and_the_estimate_restarts_from_the_imu():
+    def meas(t, ax):
+        m = _meas(t, front_range=4.0)
+        return dataclasses.replace(m, bottom_flow=BottomFlow(t, -0.10, 0.0, 200), imu=ImuReading(t, ax, 0.0, 0.0))
+
+    # GIVEN a bottom flow stuck at -0.10 m/s while the vehicle speeds up forwards at 0.5 m/s^2
+    # for 0.6 s (to +0.2 m/s), then brakes at 0.5 m/s^2 (the IMU's change wanders back)
+    upd = MAVStateUpdater()
+    out = []
+    for k in range(60):
+        t = 1.0 + 0.02 * k
+        out.append(upd.update(t, meas(t, 0.5 if k < 30 else -0.5))[0])
+    first = next(i for i, e in enumerate(out) if e.mode == EstimationMode.TOF_FRONT)
+    # THEN from the moment it is found stuck it stays dropped, although the integrated change
+    # falls back under the limit while braking
+    assert all(e.mode == EstimationMode.TOF_FRONT for e in out[first:])
+    # AND the range-derived speed starts from the stuck value plus the IMU's change, not from -0.10
+    assert out[first].vx_m_s > 0.0
+
+
+def test_a_floor_step_seen_through_an_edge_echo_leaves_no_altitude_error():
+    # GIVEN 1.5 m over a 1 m box, then off its edge: the first sample after the edge is a slant
+    # echo (0.72 m, a 0.22 m surprise), then the floor (1.5 m)
+    h = HeightEstimator(jump_m=0.15, k1=4.5, k2=6.75, k3=3.4)
+    ranges = [0.5] * 20 + [0.72, 1.38, 1.5] + [1.5] * 20
+    for k, r in enumerate(ranges):
+        h.propagate(k * 0.1, 0.0)
+        h.update(r, k * 0.1)
+    # THEN the altitude is where it was (0.5 m over where it started, on the box) and the floor
+    # took the whole step
+    assert h.altitude_m == pytest.approx(0.5, abs=0.03)
+    assert h.height_m == pytest.approx(1.5, abs=0.03)
+    # AND near the floor a clamped reading is not a step: a climb from the floor outrunning the
+    # sonar's 0.3 m minimum stays motion
+    low = HeightEstimator(jump_m=0.15, k1=4.5, k2=6.75, k3=3.4)
+    for k in range(15):
+        t = k * 0.1
+        a = 5.0 if 0.5 <= t < 0.8 else 0.0  # a light vehicle's lift-off at 5 m/s^2, then 1.5 m/s
+        true_h = 0.08 + (2.5 * (t - 0.5) ** 2 if t < 0.8 else 0.225 + 1.5 * (t - 0.8)) * (t >= 0.5)
+        low.propagate(t, a)
+        low.update(max(0.3, true_h), t)
+    assert low.floor_offset_m == 0.0
