@@ -100,7 +100,16 @@ class EpisodeMonitor:
         self.geo = HoldGeometry(scenario.world)
         self.res = EpisodeResult(spec.index, shield, spec.name, spec.kind, spec.subsets)
         self.faults = [f for f in scenario.faults]
-        self._fault_end = [f.t_s + f.duration_s for f in self.faults]
+        self._fault_spans = [(f.t_s, f.t_s + f.duration_s) for f in self.faults]
+        # The faults each metric follows: (fault index, fault, sectors it leaves unseen) for the
+        # stale sectors, (fault index, fault) for link losses long enough to judge the hover.
+        self._stale_faults = []
+        for i, f in enumerate(self.faults):
+            if f.kind is FaultKind.SENSOR_DROPOUT and f.sensor in _SECTOR_OF_SENSOR:
+                self._stale_faults.append((i, f, [_SECTOR_OF_SENSOR[f.sensor]]))
+            elif f.kind is FaultKind.RANGE_LOSS:
+                self._stale_faults.append((i, f, list(_SECTOR_OF_SENSOR.values())))
+        self._link_faults = [(i, f) for i, f in enumerate(self.faults) if f.kind is FaultKind.LINK_LOSS and f.duration_s >= 0.5]
         self._dt = 0.02
         self._prev_sign: dict[int, int] = {}
         self._prev_down: float | None = None
@@ -110,11 +119,14 @@ class EpisodeMonitor:
         self._escape_bad: set[int] = set()
         self._stale: dict[int, float | None] = {}  # fault index -> block time or None (pending)
         self._link: dict[int, dict] = {}
-        self._prev_near: list[float] | None = None  # front, left, right distance along world axes
+        self._prev_near: tuple[float, float, float] | None = None  # front, left, right distance along world axes
         self._line = [STOP_LINE_M] * 3  # each axis's stop line (moved by a lateral entry)
 
     def _fault_recent(self, t: float, within_s: float = 1.0) -> bool:
-        return any(f.t_s <= t <= end + within_s for f, end in zip(self.faults, self._fault_end))
+        for t0, end in self._fault_spans:
+            if t0 <= t <= end + within_s:
+                return True
+        return False
 
     def __call__(self, rec: TickRecord) -> None:
         r, t = self.res, rec.t
@@ -130,18 +142,21 @@ class EpisodeMonitor:
         if rec.collided and not r.collided:
             r.collided, r.collided_at_s = True, t
         if airborne:
-            r.min_clearance_m = min(r.min_clearance_m, self.geo.side_distance(x, y, z) - ROTOR_ENVELOPE_M)
+            side = rec.side_true if rec.side_true is not None else self.geo.side_distance(x, y, z)
+            r.min_clearance_m = min(r.min_clearance_m, side - ROTOR_ENVELOPE_M)
         d = rec.dist_true
+        dists = (d.front, d.left, d.right)
         flying = out.fsm is FlightState.FLYING
-        self._stop_lines((d.front, d.left, d.right))
+        self._stop_lines(dists)
         if flying and not self._fault_recent(t):
-            over = max(line - dist for line, dist in zip(self._line, (d.front, d.left, d.right)))
+            line = self._line
+            over = max(line[0] - dists[0], line[1] - dists[1], line[2] - dists[2])
             r.overshoot_m = max(r.overshoot_m if r.overshoot_m is not None else 0.0, over, 0.0)
             entry = STOP_LINE_M - min(self._line)
             if entry > 0.0:
                 r.lateral_entry_m = max(r.lateral_entry_m or 0.0, entry)
         if flying:
-            self._dither(rec, stick_w, (d.front, d.left, d.right))
+            self._dither(rec, stick_w, dists)
             self._stale_sectors(t, stick_w, cmd_w)
             self._escapes(t, x, y, z)
             self._floor_steps(t, z, d.down, u.vz_m_s)
@@ -153,7 +168,7 @@ class EpisodeMonitor:
 
     # ------------------------------------------------------------------ the metrics
     def _stop_lines(self, dists) -> None:
-        prev, self._prev_near = self._prev_near, list(dists)
+        prev, self._prev_near = self._prev_near, dists
         for k, dist in enumerate(dists):
             if dist >= STOP_LINE_M:
                 self._line[k] = STOP_LINE_M
@@ -178,13 +193,7 @@ class EpisodeMonitor:
             self._prev_sign[k] = sign
 
     def _stale_sectors(self, t, stick_w, cmd_w) -> None:
-        for i, f in enumerate(self.faults):
-            if f.kind is FaultKind.SENSOR_DROPOUT and f.sensor in _SECTOR_OF_SENSOR:
-                sectors = [_SECTOR_OF_SENSOR[f.sensor]]
-            elif f.kind is FaultKind.RANGE_LOSS:
-                sectors = list(_SECTOR_OF_SENSOR.values())
-            else:
-                continue
+        for i, f, sectors in self._stale_faults:
             if not f.active(t):
                 if i in self._stale and self._stale[i] is None:
                     self._stale[i] = math.inf  # ended unblocked
@@ -199,9 +208,7 @@ class EpisodeMonitor:
                     self._stale[i] = t - f.t_s
 
     def _link_loss(self, t, rec, stick_w) -> None:
-        for i, f in enumerate(self.faults):
-            if f.kind is not FaultKind.LINK_LOSS or f.duration_s < 0.5:
-                continue
+        for i, f in self._link_faults:
             st = self._link.get(i)
             if st is None:
                 if f.t_s <= t < f.t_s + 0.03:

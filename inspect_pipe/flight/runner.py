@@ -44,6 +44,7 @@ class TickRecord:
     link_ok: bool
     collided: bool
     rpy_true: tuple[float, float, float] = (0.0, 0.0, 0.0)  # roll, pitch, yaw (ZYX); the camera's attitude
+    side_true: float | None = None  # distance to the nearest wall or box side (HoldGeometry.side_distance)
 
 
 @dataclass(frozen=True)
@@ -77,8 +78,8 @@ def stack_params_for(scenario: Scenario, params: StackParams | None = None) -> S
     return params.replace(behaviors=dataclasses.replace(params.behaviors, max_height_m=scenario.max_height_m))
 
 
-def _sensor_faults(scenario: Scenario, now: float) -> SensorFaults:
-    active = [f for f in scenario.faults if f.active(now)]
+def _sensor_faults(active: list) -> SensorFaults:
+    """The sensor faults among the scenario's ``active`` faults."""
     if not active:
         return NO_FAULTS
     K = FaultKind
@@ -128,7 +129,11 @@ def run_scenario(
     sensor_faults = [f for f in scenario.faults if f.kind not in (FaultKind.SENSOR_DROPOUT, FaultKind.LINK_LOSS)]
     sags = [f for f in scenario.faults if f.kind is FaultKind.BATTERY_SAG]
     gusts = [f for f in scenario.faults if f.kind is FaultKind.GUST]
-    hover = stack.params.control.hover_thrust_frac
+    hover_thrust_n = stack.params.control.hover_thrust_frac * parts.vehicle.max_thrust_n
+    leg_height = parts.vehicle.leg_height_m
+    no_dropouts: frozenset = frozenset()
+    active_faults: list | None = None
+    sampler = faults = None
 
     n_ticks = int(round(scenario.duration_s * tick_hz))
     tick_dt = 1.0 / tick_hz
@@ -142,7 +147,7 @@ def run_scenario(
         link.advance(now)
         operator = link.receive(now)
         meas = sensors.read(now, sim)
-        sag = sum(f.rate for f in sags if f.active(now))  # type: ignore[misc]
+        sag = sum(f.rate for f in sags if f.active(now)) if sags else 0  # type: ignore[misc]
         battery_reading = max(0.0, battery.percent - 100.0 * sag)  # voltage sag reads as charge lost
         c0 = time.perf_counter()
         out = stack.tick(now, meas, operator, battery_reading)
@@ -154,17 +159,19 @@ def run_scenario(
         # A wall or a box's side inside the 0.35 m sphere is a collision; the floor, or the top of a
         # box straight below, only when hit hard (a touchdown faster than a landing gear takes),
         # since landing is touching them.
-        vz_true = sim.velocity[2]
-        on_floor = dist.down - parts.vehicle.leg_height_m < 0.02
-        collided = geometry.side_distance(x, y, z) < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
+        vel = sim.velocity
+        vz_true = vel[2]
+        on_floor = dist.down - leg_height < 0.02
+        side = geometry.side_distance(x, y, z)
+        collided = side < VEHICLE_RADIUS_M or (on_floor and prev_vz < -FLOOR_CRASH_M_S)
         prev_vz = vz_true
         if on_tick is not None:
             rpy = sim.euler()
             on_tick(
                 TickRecord(
-                    t=now, pos_true=(x, y, z), vel_true=sim.velocity, yaw_true=rpy[2], out=out,
+                    t=now, pos_true=(x, y, z), vel_true=vel, yaw_true=rpy[2], out=out,
                     dist_true=dist, battery_percent=battery.percent, link_ok=operator.link_ok, collided=collided,
-                    rpy_true=rpy,
+                    rpy_true=rpy, side_true=side,
                 )
             )
         if collided and collided_at is None:
@@ -173,7 +180,7 @@ def run_scenario(
                 break
         if k == n_ticks:
             break
-        dropped = frozenset(f.sensor for f in dropouts if f.active(now))  # type: ignore[misc]
+        dropped = frozenset(f.sensor for f in dropouts if f.active(now)) if dropouts else no_dropouts  # type: ignore[misc]
         if sensor_faults:
             sim.thrust_available = max(0.0, 1.0 - sag)
             wind = [0.0, 0.0, 0.0]
@@ -181,11 +188,15 @@ def run_scenario(
                 if f.active(now):
                     wind = [w + g for w, g in zip(wind, f.wind_m_s)]  # type: ignore[arg-type]
             sim.wind_m_s = tuple(wind)  # type: ignore[assignment]
-            faults = _sensor_faults(scenario, now)
-            sim.step(substeps, sensors.sampler(dropped, faults))
+            active = [f for f in scenario.faults if f.active(now)]
+            if active != active_faults:  # the faults of the last tick still hold otherwise
+                active_faults, faults = active, _sensor_faults(active)
         else:
-            sim.step(substeps, sensors.sampler(dropped))
-        battery.drain(tick_dt, sim.thrust_n / (hover * parts.vehicle.max_thrust_n))
+            faults = NO_FAULTS
+        if sampler is None or sampler.dropped != dropped or sampler.faults is not faults:
+            sampler = sensors.sampler(dropped, faults)
+        sim.step(substeps, sampler)
+        battery.drain(tick_dt, sim.thrust_n / hover_thrust_n)
     return FlightResult(
         status=status,
         final_fsm=stack.fsm,

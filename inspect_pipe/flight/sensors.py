@@ -119,16 +119,14 @@ def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, f
     return tuple((math.cos(axis_yaw_rad + o), math.sin(axis_yaw_rad + o), 0.0) for o in offsets)
 
 
-def _first_echo(sim: QuadrotorSim, pos, directions, want_incidence: bool) -> tuple[float | None, float]:
-    """Nearest hit over the beam's rays and, if asked, the incidence of that ray (rad)."""
-    best, incidence = None, 0.0
-    for d in directions:
-        r = sim.ray(pos, d)
-        if r is not None and (best is None or r < best):
-            best = r
-            if want_incidence:
-                incidence = sim.incidence_rad()
-    return best, incidence
+def _heading_velocity(sim: QuadrotorSim) -> tuple[float, float, float]:
+    """The vehicle's velocity (m/s) in the heading frame (rotated by the yaw only)."""
+    vx, vy, vz = sim.velocity
+    _, _, yaw = sim.euler()
+    c, sn = math.cos(yaw), math.sin(yaw)
+    return c * vx + sn * vy, -sn * vx + c * vy, vz
+
+
 _RANGE_CHANNELS = frozenset({"bottom_sonar", "front_sonar", "left_sonar", "right_sonar", "bottom_tof"})
 
 
@@ -145,10 +143,12 @@ class _Channel:
         self.latest = None
         self.last_value = None  # the last value sampled (a stuck sensor repeats it)
 
-    def deliver(self, now: float) -> None:
+    def deliver(self, now: float):
+        """The latest reading delivered by ``now``."""
         q = self.queue
         while q and q[0][0] <= now:
             self.latest = q.popleft()[1]
+        return self.latest
 
 
 class SensorSuite:
@@ -191,23 +191,27 @@ class SensorSuite:
             "bottom_sonar": ((0.0, 0.0, -1.0),), "bottom_tof": ((0.0, 0.0, -1.0),),
             "front_sonar": _fan(0.0, self.s), "left_sonar": _fan(math.pi / 2, self.s), "right_sonar": _fan(-math.pi / 2, self.s),
         }
+        # (name, channel, owning unit, beam directions or None for a flow output) in sampling
+        # order (the order the noise is drawn in).
+        self._channels = tuple((name, ch, self._owner[name], self._dirs.get(name)) for name, ch in self.ch.items())
 
     def _imu(self, now: float, sim: QuadrotorSim) -> ImuReading | None:
         v = sim.velocity
         prev, self._imu_prev = self._imu_prev, (now, v)
         if prev is None or now <= prev[0]:
             return None
-        dt = now - prev[0]
-        ax, ay, az = ((v[k] - prev[1][k]) / dt for k in range(3))
+        t0, (vx0, vy0, vz0) = prev
+        dt = now - t0
+        ax, ay, az = (v[0] - vx0) / dt, (v[1] - vy0) / dt, (v[2] - vz0) / dt
         _, _, yaw = sim.euler()
         c, sn = math.cos(yaw), math.sin(yaw)
-        g, im = self.noise.gauss, self.s.imu
+        g, sigma = self.noise.gauss, self.s.imu.noise_m_s2
         b = self._imu_bias
         return ImuReading(
             now,
-            c * ax + sn * ay + b[0] + g(0.0, im.noise_m_s2),
-            -sn * ax + c * ay + b[1] + g(0.0, im.noise_m_s2),
-            az + b[2] + g(0.0, im.noise_m_s2),
+            c * ax + sn * ay + b[0] + g(0.0, sigma),
+            -sn * ax + c * ay + b[1] + g(0.0, sigma),
+            az + b[2] + g(0.0, sigma),
             yaw + self._yaw_drift_rad_s * now,  # the autopilot's gyro-integrated heading
         )
 
@@ -229,63 +233,78 @@ class SensorSuite:
 
     def sample(self, sim: QuadrotorSim, dropped: frozenset[SensorName], faults: SensorFaults = NO_FAULTS) -> None:
         t = sim.t
-        if t + 1e-9 < self._next_due:
+        reached = t + 1e-9  # a sample is due once its time is reached, to within rounding
+        if reached < self._next_due:
             return
         self._faults = faults
-        pos = None
-        for name, ch in self.ch.items():
-            if t + 1e-9 < ch.next_t:
+        faulty = faults is not NO_FAULTS and faults.any()
+        pos = v_heading = None  # the vehicle's state, read once per sample
+        next_due = math.inf
+        for name, ch, owner, dirs in self._channels:
+            next_t = ch.next_t
+            if reached < next_t:
+                if next_t < next_due:
+                    next_due = next_t
                 continue
-            ch.next_t += ch.period
-            owner = self._owner[name]
-            if owner in dropped or (faults.range_loss and name in _RANGE_CHANNELS):
+            ch.next_t = next_t = next_t + ch.period
+            if next_t < next_due:
+                next_due = next_t
+            if (dropped and owner in dropped) or (faults.range_loss and name in _RANGE_CHANNELS):
                 if name.endswith("flow") or (faults.range_loss and name in ("bottom_sonar", "front_sonar")):
                     self._px_range[name.replace("sonar", "flow")] = None
                 continue
             stamp = t + ch.latency  # delivery time: what the onboard clock stamps
-            if faults.any():
+            if faulty:
                 if owner in faults.packet_loss and self.fault_rng.random() < faults.packet_loss[owner]:
                     continue
                 if owner in faults.stuck and ch.last_value is not None:
                     ch.queue.append((stamp, dataclasses.replace(ch.last_value, stamp_s=stamp)))
                     continue
-            if pos is None:
-                pos = sim.position
-            value = self._measure(name, sim, pos, stamp)
+            if dirs is None:
+                if v_heading is None:
+                    v_heading = _heading_velocity(sim)
+                value = self._measure_flow(name, owner, v_heading, stamp)
+            else:
+                if pos is None:
+                    pos = sim.position
+                value = self._measure_range(name, owner, dirs, sim, pos, stamp)
             ch.last_value = value
             ch.queue.append((stamp, value))
-        self._next_due = min(ch.next_t for ch in self.ch.values())
+        self._next_due = next_due
 
-    def _measure(self, name: str, sim: QuadrotorSim, pos, stamp: float):
+    def _measure_range(self, name: str, owner: SensorName, dirs, sim: QuadrotorSim, pos, stamp: float) -> RangeReading:
+        """The nearest echo over the sensor's rays, with noise."""
         s = self.s
-        if name in self._dirs:
-            spec = s.tof if name == "bottom_tof" else s.sonar
-            spurious = self._faults.spurious_max_range.get(self._owner[name]) if name != "bottom_tof" else None
-            true_m, incidence = _first_echo(sim, pos, self._dirs[name], bool(spurious))
-            rng = self._range(spec, true_m)
-            if spurious and rng is not None and incidence > math.radians(s.grazing_deg):
-                if self.fault_rng.random() < spurious:
-                    rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
-            if name == "bottom_sonar":
-                self._px_range["bottom_flow"] = rng
-            elif name == "front_sonar":
-                self._px_range["front_flow"] = rng
-            return RangeReading(stamp, rng)
-        # Optical flow, in the heading frame (gyro-compensated), scaled by the unit's sonar.
-        fl = s.flow
+        if name == "bottom_tof":
+            spec, spurious = s.tof, None
+        else:
+            spurious_faults = self._faults.spurious_max_range
+            spec, spurious = s.sonar, spurious_faults.get(owner) if spurious_faults else None
+        rng = self._range(spec, sim.first_echo(pos, dirs))
+        # A reading implies an echo: the incidence is that of the ray that made it.
+        if spurious and rng is not None and sim.incidence_rad() > math.radians(s.grazing_deg):
+            if self.fault_rng.random() < spurious:
+                rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
+        if name == "bottom_sonar":
+            self._px_range["bottom_flow"] = rng
+        elif name == "front_sonar":
+            self._px_range["front_flow"] = rng
+        return RangeReading(stamp, rng)
+
+    def _measure_flow(self, name: str, owner: SensorName, v_heading, stamp: float) -> BottomFlow | FrontFlow:
+        """Optical flow, in the heading frame (gyro-compensated), scaled by the unit's sonar;
+        ``v_heading``: the vehicle's velocity in the heading frame."""
+        hx, hy, vz = v_heading
+        fl = self.s.flow
         scale_range = self._px_range[name]
-        vx, vy, vz = sim.velocity
-        _, _, yaw = sim.euler()
-        c, sn = math.cos(yaw), math.sin(yaw)
-        hx, hy = c * vx + sn * vy, -sn * vx + c * vy
         bx, by = self.bias[name]
         g = self.noise.gauss
         if scale_range is None:
             sigma, quality = 0.0, 0
         else:
             sigma, quality = fl.noise_m_s + fl.noise_per_m * scale_range, fl.quality + int(g(0.0, 15.0))
-        quality = max(0, min(255, quality))
-        if self._faults.flow_quality_zero and self._owner[name] in self._faults.flow_quality_zero:
+        quality = 0 if quality < 0 else 255 if quality > 255 else quality  # 0..255
+        if self._faults.flow_quality_zero and owner in self._faults.flow_quality_zero:
             quality = 0
         if sigma == 0.0:
             a = b = 0.0  # no metric scale without an echo
@@ -298,11 +317,8 @@ class SensorSuite:
     def read(self, now: float, sim: QuadrotorSim) -> Measurements:
         """Latest reading each sensor has delivered by ``now``, and the IMU's mean acceleration
         since the previous read (heading frame, gravity removed)."""
-        out: dict = {"imu": self._imu(now, sim)}
-        for name, ch in self.ch.items():
-            ch.deliver(now)
-            out[name] = ch.latest
-        return Measurements(**out)
+        latest = {name: ch.deliver(now) for name, ch in self.ch.items()}
+        return Measurements(imu=self._imu(now, sim), **latest)
 
 
 class _Sampler:

@@ -136,7 +136,11 @@ class QuadrotorSim:
         self._ray_pnt = np.zeros(3)
         self._geomid = np.zeros(1, dtype=np.int32)
         self._xfrc = self.data.xfrc_applied[self.body]
+        self._xmat = self.data.xmat[self.body]  # views into MjData: they follow the simulation
         self._last_hit: tuple | None = None
+        # (quaternion, (roll, pitch, yaw)) of the last attitude worked out: the controller, the
+        # sensors and the runner all ask for the attitude of the same physics state.
+        self._att: tuple[list[float], tuple[float, float, float]] | None = None
         # Faults the scenario injects: wind (world frame, m/s) seen through the rotor drag, and
         # the share of maximum thrust still available (battery sag).
         self.wind_m_s = (0.0, 0.0, 0.0)
@@ -160,11 +164,24 @@ class QuadrotorSim:
 
     def euler(self) -> tuple[float, float, float]:
         """(roll, pitch, yaw) in rad, ZYX convention."""
-        w, x, y, z = self.data.qpos[3:7].tolist()
+        quat = self.data.qpos[3:7].tolist()
+        att = self._att
+        if att is not None and att[0] == quat:
+            return att[1]
+        return self._attitude(quat)
+
+    def _attitude(self, quat: list[float]) -> tuple[float, float, float]:
+        """Euler angles of the unit quaternion ``quat`` (w, x, y, z), remembered for ``euler``."""
+        w, x, y, z = quat
         roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        sin_pitch = 2 * (w * y - z * x)
+        sin_pitch = sin_pitch if sin_pitch < 1.0 else 1.0  # min(1.0, .), max(-1.0, .) without the calls
+        sin_pitch = sin_pitch if sin_pitch > -1.0 else -1.0
+        pitch = math.asin(sin_pitch)
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-        return roll, pitch, yaw
+        rpy = (roll, pitch, yaw)
+        self._att = (quat, rpy)
+        return rpy
 
     def rotation(self) -> np.ndarray:
         return self.data.xmat[self.body].reshape(3, 3)
@@ -176,7 +193,8 @@ class QuadrotorSim:
     def step(self, n: int = 1, after_step: Callable[["QuadrotorSim"], None] | None = None) -> None:
         """``n`` physics steps holding the current set-point; ``after_step(self)`` after each
         (the sensors sample there), or only once ``sim.t`` reaches ``after_step.next_due_s`` when
-        the callable has that attribute. The air disturbance changes once per call."""
+        the callable has that attribute (read again after each call: only the call moves it).
+        The air disturbance changes once per call."""
         m, d = self.model, self.data
         fw, veh = self.firmware, self.vehicle
         dt = self.dt
@@ -191,37 +209,44 @@ class QuadrotorSim:
         dist = self._dist
         for k in range(3):
             dist[k] += -dist_a * dist[k] + dist_s * self.rng.gauss(0.0, 1.0)
-        qpos, qvel, xmat = d.qpos, d.qvel, d.xmat
-        xfrc = self._xfrc
+        qpos, qvel = d.qpos, d.qvel
+        xfrc, body_R = self._xfrc, self._xmat
+        ixx, iyy, izz = self.ixx, self.iyy, self.izz
         sp = self.setpoint
         roll_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.roll_rad))
         pitch_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.pitch_rad))
         thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax * self.thrust_available
+        yaw_rate_sp = sp.yaw_rate_rad_s
+        yaw_sp_step = yaw_rate_sp * dt
         wx, wy, wz = self.wind_m_s
         armed = thrust_sp > 0.0 or self.thrust_n > 0.01
+        # Air disturbance: only while armed, constant over the call.
+        fx, fy, fz = dist if armed else (0.0, 0.0, 0.0)
+        pi, two_pi = math.pi, 2 * math.pi
+        if after_step is None:
+            due = math.inf
+        else:
+            due = getattr(after_step, "next_due_s", -math.inf)
+        t, T, yaw_sp = self.t, self.thrust_n, self.yaw_sp
+        roll, pitch, yaw = self.euler()
         for _ in range(n):
-            w, x, y, z = qpos[3:7].tolist()
-            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
             vx, vy, vz, p, q, r = qvel.tolist()
             vx, vy, vz = vx - wx, vy - wy, vz - wz  # air-relative: drag pushes towards the wind
-            self.thrust_n += alpha * (thrust_sp - self.thrust_n)
+            T += alpha * (thrust_sp - T)  # motor lag
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             cd = c1 + c2 * speed
             if armed:
-                self.yaw_sp += sp.yaw_rate_rad_s * dt
-                yaw_err = (self.yaw_sp - yaw + math.pi) % (2 * math.pi) - math.pi
-                tx = self.ixx * (kp_rp * (roll_sp - roll) - kd_rp * p)
-                ty = self.iyy * (kp_rp * (pitch_sp - pitch) - kd_rp * q)
-                tz = self.izz * (kp_y * yaw_err + kd_y * (sp.yaw_rate_rad_s - r))
-                fx, fy = dist[0], dist[1]
-                fz = dist[2]
+                yaw_sp += yaw_sp_step
+                yaw_err = (yaw_sp - yaw + pi) % two_pi - pi
+                tx = ixx * (kp_rp * (roll_sp - roll) - kd_rp * p)
+                ty = iyy * (kp_rp * (pitch_sp - pitch) - kd_rp * q)
+                tz = izz * (kp_y * yaw_err + kd_y * (yaw_rate_sp - r))
             else:
-                self.yaw_sp = yaw
-                tx = ty = tz = fx = fy = fz = 0.0
-            R = xmat[self.body].tolist()
-            T = self.thrust_n
+                yaw_sp = yaw
+                tx = ty = tz = 0.0
+            # Thrust along the body z axis, drag and disturbance (world frame); torques rotated
+            # from the body to the world frame.
+            R = body_R.tolist()
             xfrc[0] = R[2] * T + fx - cd * vx
             xfrc[1] = R[5] * T + fy - cd * vy
             xfrc[2] = R[8] * T + fz - cd * vz
@@ -229,27 +254,44 @@ class QuadrotorSim:
             xfrc[4] = R[3] * tx + R[4] * ty + R[5] * tz
             xfrc[5] = R[6] * tx + R[7] * ty + R[8] * tz
             mujoco.mj_step(m, d)
-            self.t += dt
-            if after_step is not None and self.t + 1e-9 >= getattr(after_step, "next_due_s", -math.inf):
-                after_step(self)
+            t += dt
+            roll, pitch, yaw = self._attitude(qpos[3:7].tolist())
+            if t + 1e-9 >= due:
+                self.t, self.thrust_n, self.yaw_sp = t, T, yaw_sp
+                after_step(self)  # type: ignore[misc]
+                due = getattr(after_step, "next_due_s", -math.inf)
+                t = self.t
+        self.t, self.thrust_n, self.yaw_sp = t, T, yaw_sp
 
     # ------------------------------------------------------------------ sensing
     def ray(self, origin: tuple[float, float, float], direction_body: tuple[float, float, float]) -> float | None:
         """Distance along a body-frame direction from ``origin`` (world) to the scene, or None."""
-        R = self.data.xmat[self.body]
-        dx, dy, dz = direction_body
-        v = self._ray_vec
-        v[0] = R[0] * dx + R[1] * dy + R[2] * dz
-        v[1] = R[3] * dx + R[4] * dy + R[5] * dz
-        v[2] = R[6] * dx + R[7] * dy + R[8] * dz
-        pnt = self._ray_pnt
+        return self.first_echo(origin, (direction_body,))
+
+    def first_echo(self, origin: tuple[float, float, float], directions_body) -> float | None:
+        """Nearest hit (m) over rays along body-frame directions from ``origin`` (world), or None
+        if none hits; ``incidence_rad`` then describes that ray (the first of equally near ones)."""
+        R0, R1, R2, R3, R4, R5, R6, R7, R8 = self._xmat.tolist()
+        m, d, body = self.model, self.data, self.body
+        v, pnt, geomid = self._ray_vec, self._ray_pnt, self._geomid
         pnt[0], pnt[1], pnt[2] = origin
-        dist = mujoco.mj_ray(self.model, self.data, pnt, v, None, True, self.body, self._geomid)
-        if dist < 0:
+        best = None
+        for dx, dy, dz in directions_body:
+            # The direction in the world frame.
+            ux = R0 * dx + R1 * dy + R2 * dz
+            uy = R3 * dx + R4 * dy + R5 * dz
+            uz = R6 * dx + R7 * dy + R8 * dz
+            v[0], v[1], v[2] = ux, uy, uz
+            dist = mujoco.mj_ray(m, d, pnt, v, None, True, body, geomid)
+            if dist >= 0 and (best is None or dist < best):
+                best = dist
+                hit = (ux, uy, uz), int(geomid[0])
+        if best is None:
             return None
         # Incidence is worked out on demand (only the spurious-echo fault needs it).
-        self._last_hit = (pnt.tolist(), v.tolist(), float(dist), int(self._geomid[0]))
-        return float(dist)
+        best = float(best)
+        self._last_hit = (origin, hit[0], best, hit[1])
+        return best
 
     def incidence_rad(self) -> float:
         """Angle between the last ray that hit and the normal of the surface it hit (rad); the
