@@ -19,15 +19,20 @@ Definitions (all distances from the vehicle's centre unless said otherwise):
 * stuck: an escape the operator asked for (sideways out of a corner or along a wall) made less
   than 0.3 m of progress, with no fault active meanwhile. An escape that the hold's geometry
   does not allow is not judged: if straight along its direction, within its required progress,
-  the vehicle's centre would come closer than ``STOP_LINE_M`` - 0.05 m to a wall or box (and
-  closer than where it started), a shield that honours the stop line cannot make it (e.g. the
-  stick pushes into the end of a pillar 1.07 m away); such escapes are counted as
+  the vehicle's centre would come closer than where it started and within ``STOP_TOLERANCE_M``
+  (0.05 m) of the stop line or inside it, or more than that closer than where it started, a shield that honours the stop
+  line cannot be judged on it (e.g. the stick pushes into the end of a pillar 1.07 m away; or,
+  from 1.31 m out of a corner's side wall, 0.3 m of progress would end 1 cm from the line, and a
+  vehicle that stops 5 cm short of the line made 0.26 m); such escapes are counted as
   ``escapes_blocked``;
 * stale-sector block time: from the start of a blackout of the sensor that sees the sector the
   operator pushes into, until the command into that sector is <= 0.05 m/s (never: the blackout's
   duration, counted as unblocked);
 * link-loss hover time: from the start of a link loss (>= 0.5 s, stick off-centre, flying) to
-  the first horizontal command <= 0.01 m/s; braking: horizontal distance from there to where the
+  the first horizontal command of <= 0.01 m/s along the operator's last push (the stick is no
+  longer obeyed; a collision repulsion across it, away from a pillar's corner the vehicle is
+  within the stop line of, is a safety action, not the stick); ``link_still_s``: to the first
+  horizontal command <= 0.01 m/s in every direction, the stricter old quantity; braking: horizontal distance from there to where the
   vehicle first comes to rest (true speed < 0.1 m/s); drift: largest horizontal displacement from
   that rest point until the link is back, within 10 s of the hover command (the hover's drift, "over 10 s";
   braking from the operator's speed is physics: 0.3-0.6 m from 0.8 m/s, so it is reported apart);
@@ -53,6 +58,7 @@ __all__ = ["EpisodeMonitor", "EpisodeResult", "aggregate", "ROTOR_ENVELOPE_M", "
 
 ROTOR_ENVELOPE_M = 0.27
 STOP_LINE_M = 1.0
+STOP_TOLERANCE_M = 0.05  # an escape ending this near the stop line (either side) is not judged
 ENTRY_JUMP_M = 0.15  # a closing of 0.15 m in one 20 ms tick (7.5 m/s) is a new surface, not motion
 LEG_HEIGHT_M = 0.08
 _SECTOR_OF_SENSOR = {SensorName.FRONT_FLOW: (1.0, 0.0), SensorName.LEFT_SONAR: (0.0, 1.0), SensorName.RIGHT_SONAR: (0.0, -1.0)}
@@ -77,6 +83,7 @@ class EpisodeResult:
     stale_block_s: list[float] = field(default_factory=list)
     stale_unblocked: int = 0
     link_hover_s: list[float] = field(default_factory=list)
+    link_still_s: list[float] = field(default_factory=list)
     link_drift_m: list[float] = field(default_factory=list)
     link_brake_m: list[float] = field(default_factory=list)
     altitude_excursion_m: float | None = None
@@ -212,14 +219,20 @@ class EpisodeMonitor:
             st = self._link.get(i)
             if st is None:
                 if f.t_s <= t < f.t_s + 0.03:
-                    if math.hypot(*stick_w) > 0.05:
-                        self._link[i] = {"t0": f.t_s, "hover_t": None, "pos": None, "rest": None, "brake": 0.0, "drift": 0.0}
+                    n = math.hypot(*stick_w)
+                    if n > 0.05:
+                        self._link[i] = {"t0": f.t_s, "u": (stick_w[0] / n, stick_w[1] / n), "hover_t": None,
+                                         "still_t": None, "pos": None, "rest": None, "brake": 0.0, "drift": 0.0}
                 continue
             if t > f.t_s + f.duration_s:
                 continue
             cmd = rec.out.command
+            if st["still_t"] is None and abs(cmd.vx_m_s) <= 0.01 and abs(cmd.vy_m_s) <= 0.01:
+                st["still_t"] = t
             if st["hover_t"] is None:
-                if abs(cmd.vx_m_s) <= 0.01 and abs(cmd.vy_m_s) <= 0.01:
+                c, sn = math.cos(rec.yaw_true), math.sin(rec.yaw_true)
+                along = (c * cmd.vx_m_s - sn * cmd.vy_m_s) * st["u"][0] + (sn * cmd.vx_m_s + c * cmd.vy_m_s) * st["u"][1]
+                if along <= 0.01:
                     st["hover_t"], st["pos"], st["brake"] = t, rec.pos_true[:2], 0.0
             elif t - st["hover_t"] <= 10.0:
                 p0, p = st["pos"], rec.pos_true[:2]
@@ -233,11 +246,11 @@ class EpisodeMonitor:
 
     def _escape_possible(self, x, y, z, e) -> bool:
         d0 = self.geo.side_distance(x, y, z)
-        floor = min(d0, STOP_LINE_M) - 0.05
         n = max(1, int(math.ceil(e.min_progress_m / 0.05)))
         for k in range(1, n + 1):
             s = e.min_progress_m * k / n
-            if self.geo.side_distance(x + s * e.direction[0], y + s * e.direction[1], z) < floor:
+            d = self.geo.side_distance(x + s * e.direction[0], y + s * e.direction[1], z)
+            if d < d0 - STOP_TOLERANCE_M or (d < d0 - 1e-3 and d < STOP_LINE_M + STOP_TOLERANCE_M):
                 return False
         return True
 
@@ -283,6 +296,8 @@ class EpisodeMonitor:
                 r.link_hover_s.append(round(st["hover_t"] - st["t0"], 3))
                 r.link_drift_m.append(round(st["drift"], 3))
                 r.link_brake_m.append(round(st["brake"], 3))
+            if st["still_t"] is not None:
+                r.link_still_s.append(round(st["still_t"] - st["t0"], 3))
         r.wall_s = wall_s
         return r
 
@@ -310,6 +325,7 @@ def aggregate(results: list[EpisodeResult]) -> dict:
     dither = [10.0 * r.dither_changes / r.dither_held_s for r in results if r.dither_held_s >= 2.0]
     stale = [s for r in results for s in r.stale_block_s]
     hover = [s for r in results for s in r.link_hover_s]
+    still = [s for r in results for s in r.link_still_s]
     drift = [s for r in results for s in r.link_drift_m]
     brake = [s for r in results for s in r.link_brake_m]
     alt = [r.altitude_excursion_m for r in results if r.altitude_excursion_m is not None]
@@ -337,6 +353,7 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "link_loss_events": len(hover),
         "link_loss_hover_s_max": _rnd(max(hover)) if hover else None,
         "link_loss_hover_s_median": _rnd(_pct(hover, 0.5)),
+        "link_loss_still_s_max": _rnd(max(still)) if still else None,
         "link_loss_drift_m_max": _rnd(max(drift)) if drift else None,
         "link_loss_brake_m_max": _rnd(max(brake)) if brake else None,
         "link_loss_brake_m_median": _rnd(_pct(brake, 0.5)),

@@ -116,3 +116,40 @@ def test_an_escape_into_a_pillar_within_the_stop_line_is_not_judged():
     # AND away from it, or along the hold with the pillar behind, the escape is possible
     assert m._escape_possible(5.0, 0.0, 1.5, away)
     assert m._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (1.0, 0.0), 0.3))
+
+
+def test_an_escape_ending_within_five_centimetres_of_the_stop_line_is_not_judged():
+    from inspect_pipe.campaign.generator import Escape
+
+    # GIVEN a vehicle in a corner, 1.05 m from the wall ahead (+x) and 1.31 m or 1.40 m from the
+    # side wall (-y), asked for 0.3 m of progress along -y (seed 2, episode 1041)
+    def possible(side_m):
+        spec = _spec()
+        spec.doc["world"]["boxes"] = [
+            {"min": [6.05, -3.0, 0.0], "max": [7.0, 3.0, 8.0]},
+            {"min": [3.0, -3.0, 0.0], "max": [7.0, -side_m, 8.0]},
+        ]
+        return _monitor(spec)._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (0.0, -1.0), 0.3))
+
+    # THEN from 1.31 m the escape would end 1 cm from the line: a shield stopping 5 cm short of
+    # it cannot make 0.3 m, so it is not judged; from 1.40 m it is
+    assert not possible(1.31)
+    assert possible(1.40)
+
+
+def test_link_loss_hover_is_when_the_push_stops_being_obeyed_not_a_repulsion_across_it():
+    spec = _spec([{"t": 2.0, "fault": "link_loss", "duration_s": 3.0}])
+    m = _monitor(spec)
+    # GIVEN the stick forward when the link drops at t = 2 s; 0.2 s later the forward command is
+    # gone, but a collision repulsion sideways (+y, away from a pillar's corner) lasts until 2.4 s
+    t = 1.9
+    while t < 5.5:
+        fwd = 0.4 if t < 2.2 else 0.0
+        side = 0.1 if 2.0 <= t < 2.4 else 0.0
+        m(_tick(t, cmd=(fwd, side), stick=(0.4, 0.0), link=t < 2.0))
+        t += DT
+    r = m.finish(0.0)
+    # THEN the stick stopped being obeyed after 0.2 s (the hover time), the vehicle's command was
+    # zero in every direction after 0.4 s (the stricter quantity)
+    assert abs(r.link_hover_s[0] - 0.2) < 0.03
+    assert abs(r.link_still_s[0] - 0.4) < 0.03
