@@ -150,6 +150,16 @@ class FlightController:
         for o in (self.obs_x, self.obs_y, self.obs_z):
             o.reset()
 
+    def unexplained_lift_m_s2(self, az_measured: float) -> float:
+        """How much more upward acceleration the IMU felt than the last set-point explains, for
+        this vehicle (nominal response less the shortfall the observer has learnt): the floor's
+        jolt at touchdown. (Judged against the nominal hover thrust instead, a light vehicle's
+        ordinary climb at "hover thrust" was a touchdown: safety campaign, seed 4, a -29 % mass
+        vehicle took a mode change at 2.5 m for the floor and fell.)"""
+        o = self.obs_z
+        expected = (o._expected if o._expected is not None else o._applied) - o.value
+        return az_measured - o.bias - expected
+
     def calibrate_at_rest(self, accel_measured: tuple[float, float, float] | None) -> None:
         """An IMU reading taken on the floor, motors off: it is the accelerometer's bias."""
         if accel_measured is not None:

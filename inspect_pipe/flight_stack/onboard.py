@@ -83,8 +83,7 @@ class OnboardStack:
                 land_requested=Button.LAND in buttons or beh.land_request,
                 high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
                 impact=measurements.imu is not None
-                and measurements.imu.az_m_s2 > fm.impact_accel_m_s2
-                and self._last_thrust <= 1.1 * p.control.hover_thrust_frac,
+                and self.controller.unexplained_lift_m_s2(measurements.imu.az_m_s2) > fm.impact_accel_m_s2,
             ),
         )
         ctrl = self.controller
