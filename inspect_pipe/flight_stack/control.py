@@ -181,6 +181,7 @@ class FlightController:
         thrust_cap_frac: float = 1.0,
         unwind_vertical: bool = False,
         accel_measured: tuple[float, float, float] | None = None,
+        handover_trim_only: bool = False,
     ) -> AttitudeSetpoint:
         """``accel_measured``: the IMU's acceleration (heading frame) since the last set-point,
         given while airborne: it feeds the disturbance observers (None leaves them as they are)."""
@@ -222,8 +223,12 @@ class FlightController:
                 # Hand over the height loop's whole output, not only its integrator: while it was
                 # correcting a sink (battery sag) its P and D terms carried part of the thrust, and
                 # an alarm mode that took over then dropped it (safety campaign: sank onto a box).
+                # Not into an alarm mode, though: its last output answered the alarm's filled-in
+                # state (a sudden climb), and kept as trim it drove the alarm descent to 0.48 m/s
+                # instead of 0.2 (safety campaign, seed 4); the observer carries a sag now.
                 lim = self.pid_vz.integral_limit
-                self.pid_vz.reset(max(-lim, min(lim, self._last_az)))
+                last = self.pid_height.integral if handover_trim_only else self._last_az
+                self.pid_vz.reset(max(-lim, min(lim, last)))
             self.height_ref_m = None
             az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators, unwind=unwind_vertical)
             trim = self.pid_vz.integral

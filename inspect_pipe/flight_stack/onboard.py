@@ -138,7 +138,8 @@ class OnboardStack:
             # a thrust loss that began just before (safety campaign: battery sag, then every range
             # sensor lost: sank faster and faster onto a coaming). XY integrators stay frozen.
             setpoint = ctrl.update(
-                cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm, accel_measured=accel
+                cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm, accel_measured=accel,
+                handover_trim_only=alarm,
             )
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
