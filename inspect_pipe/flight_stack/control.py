@@ -150,6 +150,11 @@ class FlightController:
         for o in (self.obs_x, self.obs_y, self.obs_z):
             o.reset()
 
+    @property
+    def accel_bias(self) -> tuple[float, float, float]:
+        """The accelerometer's bias learnt at rest (heading frame, m/s^2)."""
+        return (self.obs_x.bias, self.obs_y.bias, self.obs_z.bias)
+
     def unexplained_lift_m_s2(self, az_measured: float) -> float:
         """How much more upward acceleration the IMU felt than the last set-point explains, for
         this vehicle (nominal response less the shortfall the observer has learnt): the floor's

@@ -232,6 +232,8 @@ class MAVStateUpdater:
         self._range_stuck = {
             k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
         }
+        #: the accelerometer's bias (heading frame, m/s^2), learnt at rest on the floor by the onboard stack
+        self.imu_bias = (0.0, 0.0, 0.0)
         self._was_stuck = {"bottom": False, "front": False}
         self._newly_stuck = {"bottom": False, "front": False}
         self._v_prev = (0.0, 0.0)  # last horizontal speed estimate (the stuck-sonar check runs first)
@@ -301,8 +303,12 @@ class MAVStateUpdater:
         elif fflow is not None:
             vx, vy = -self.front.rate, fflow.vy_m_s
         else:
+            # The accelerometer's bias, learnt on the floor, is removed first: carried with it, the
+            # speed settles at bias x leak time, and the speed loop holding it at 0 flew the
+            # vehicle at 0.1 m/s into the wall it was held at (safety campaign, seed 4).
             k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
-            vx, vy = (self._dr_v[0] + ax * dt) * k, (self._dr_v[1] + ay * dt) * k
+            bx, by, _ = self.imu_bias
+            vx, vy = (self._dr_v[0] + (ax - bx) * dt) * k, (self._dr_v[1] + (ay - by) * dt) * k
             vx, vy = self._range_rate_speeds(now, dt, vx, vy)
         self._dr_v = (vx, vy)
         if self._yaw is not None:
@@ -334,7 +340,7 @@ class MAVStateUpdater:
             self._dr_vz = self.height.rate_m_s
         elif mode < 0:
             k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
-            self._dr_vz = (self._dr_vz + az * dt) * k
+            self._dr_vz = (self._dr_vz + (az - self.imu_bias[2]) * dt) * k
             vz = self._dr_vz + p.alarm_climb_m_s
         else:
             vz = vz_flow if vz_flow is not None else self.height.rate_m_s

@@ -107,6 +107,7 @@ class OnboardStack:
             ctrl.reset()
             if self._last_thrust == 0.0:
                 ctrl.calibrate_at_rest(accel)
+                self.state_updater.imu_bias = ctrl.accel_bias
             cmd, setpoint, names = HOVER, AttitudeSetpoint(), ()
         elif state is FlightState.TAKING_OFF:
             cmd = SpeedCommand(0.0, 0.0, fm.takeoff_climb_m_s, 0.0)

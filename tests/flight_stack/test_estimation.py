@@ -270,3 +270,23 @@ def test_a_floor_step_seen_through_an_edge_echo_leaves_no_altitude_error():
         low.propagate(t, a)
         low.update(max(0.3, true_h), t)
     assert low.floor_offset_m == 0.0
+
+
+def test_alarm_mode_carried_speed_removes_the_accelerometer_bias_learnt_on_the_floor():
+    # GIVEN every range sensor lost (mode -2) while hovering still, with an accelerometer that
+    # reads +0.03 m/s^2 forwards and up too much
+    def carried(bias):
+        upd = MAVStateUpdater()
+        upd.imu_bias = bias
+        est = None
+        for k in range(250):
+            t = 1.0 + 0.02 * k
+            est = upd.update(t, Measurements(imu=ImuReading(t, 0.03, 0.0, 0.03, 0.0)))[0]
+        return est
+
+    # THEN with the bias learnt on the floor removed the carried speed stays at rest
+    est = carried((0.03, 0.0, 0.03))
+    assert est.mode == EstimationMode.ALARM_NONE
+    assert abs(est.vx_m_s) < 0.005
+    # AND without it, it settles near bias x leak time (0.09 m/s), which the speed loop would fly
+    assert carried((0.0, 0.0, 0.0)).vx_m_s > 0.06
