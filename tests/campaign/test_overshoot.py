@@ -26,6 +26,9 @@ CASES = [
     (1, 674, "campaign_s1_e00674_wall_push.yaml", 0.181, 0.10),
     # a stuck side sonar while pushing at 0.77 m/s towards the wall (fresh seed 2)
     (2, 893, "campaign_s2_e00893_wall_push.yaml", 0.145, 0.10),
+    # a stuck bottom flow at a wall (fresh seed 3); every range sensor lost at a wall (seed 4)
+    (3, 1736, "campaign_s3_e01736_corner_push.yaml", 0.150, 0.10),
+    (4, 1172, "campaign_s4_e01172_wall_push.yaml", 0.119, 0.10),
 ]
 
 
@@ -33,7 +36,8 @@ CASES = [
 def test_overshoot_regression_stays_within_the_goal(seed, index, fname, before, bound):
     assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
     # GIVEN a forward push held while yawing (the wall heard ever more obliquely by both sonars),
-    # a gust the speed integrator held against ending near a wall, or a stuck sonar
+    # a gust the speed integrator held against ending near a wall, a stuck sonar or flow, or
+    # every range sensor lost
     # WHEN ours flies it THEN the oblique-wall fit / disturbance observers / stuck-sonar check keep the
     # vehicle within the goal of the 1 m line, where it used to pass it by ``before``
     r = fly_episode(generate_episode(seed, index), "ours")
