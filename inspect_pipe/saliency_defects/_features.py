@@ -37,6 +37,20 @@ LINE_LEN_PX = 11  # 11x11 is the largest kernel OpenCV filters directly (13+ swi
 REGION = 31
 #: Side (px at half the features' resolution) of the structure tensor's averaging box.
 COH_BOX = 3
+#: Sides (px at the features' level) of the boxes of the local colour statistics: standard
+#: deviations over 7 and 15 px (``*_std7``, ``*_std15``), gradient energy over 15 px (``*_grad15``).
+STAT_BOXES = (7, 15)
+#: Side (px at the features' level) of the box whose mean the relative colour features (``*_rel``)
+#: subtract: a local grey world over about a quarter of a frame at half resolution.
+REL_BOX = 127
+#: Sides (px at the features' level) of the boxes pooling the texture energies of the finest band
+#: (``ctex_*``, ``ctex_*_mean``) and of the next band (``ctex2_*``).
+CTEX_BOXES = (5, 17)
+CTEX2_BOX = 9
+#: Channels of the texture energies: red chromaticity R / (R + G + B) and HSV value. The colour
+#: opponents' bands scored as well on validation images but read per-pixel chroma noise as texture
+#: (synthetic rust with independent channel noise was lost), so they are not features.
+CTEX_CHANNELS = ("r", "v")
 
 #: Names of the features, in the order of :func:`compute_features`'s output.
 FEATURE_NAMES: tuple[str, ...] = (
@@ -63,6 +77,22 @@ FEATURE_NAMES: tuple[str, ...] = (
     "val_mean",  # HSV value averaged over 31 px
     "val_std",  # local standard deviation of HSV value over 31 px (region roughness)
     "rough_mean",  # fine texture energy averaged over 31 px
+    # local colour statistics at the features' level (rust is mottled; paint, concrete, sky are even)
+    "lab_a_std7",  # standard deviation of a* over 7 px
+    "lab_b_std7",  # same of b*
+    "rchrom_std7",  # same of the red chromaticity
+    "val_std7",  # same of the HSV value
+    "lab_a_std15", "lab_b_std15", "rchrom_std15", "val_std15",  # the same over 15 px
+    "lab_a_grad15",  # gradient magnitude of a* (Sobel) averaged over 15 px
+    "lab_b_grad15", "rchrom_grad15",  # same of b*, of the red chromaticity
+    "lab_a_rel",  # a* minus its mean over 127 px (local grey world: colour relative to the scene's)
+    "lab_b_rel",  # b* minus its mean over 127 px
+    "rchrom_rel",  # red chromaticity minus its mean over 127 px
+    "val_rel",  # HSV value over its mean over 127 px
+    # texture energy at the image's full resolution: |finest Laplacian band| of the red chromaticity
+    # (x 255) and the value, pooled 2 x 2, then over 5 and 17 px at the features' level; the next
+    # band (half resolution) over 9 px
+    "ctex_r", "ctex_v", "ctex_r_mean", "ctex_v_mean", "ctex2_r", "ctex2_v",
     # cracks: thin, dark, elongated
     "ridge1",  # sigma^2 * largest Hessian eigenvalue at sigma 1 px (dark valley > 0)
     "ridge2",  # same at sigma 2 px
@@ -76,8 +106,14 @@ FEATURE_NAMES: tuple[str, ...] = (
 #: The colour evidence among them (the corrosion cascade's colour model; see ``zc`` context maps).
 COLOUR_FEATURES = frozenset({
     "rg_cs", "by_cs", "sat_cs", "hs", "rchrom", "lab_a", "lab_b", "sat_mean", "rchrom_mean",
-    "lab_a_mean", "lab_b_mean",
+    "lab_a_mean", "lab_b_mean", "lab_a_std7", "lab_b_std7", "rchrom_std7", "lab_a_std15", "lab_b_std15",
+    "rchrom_std15", "lab_a_grad15", "lab_b_grad15", "rchrom_grad15", "lab_a_rel", "lab_b_rel", "rchrom_rel",
+    "ctex_r", "ctex_r_mean", "ctex2_r",
 })
+#: The statistics of the per-pixel maps lab_a, lab_b, rchrom and val (computed together).
+STAT_FEATURES = frozenset(f"{m}_{k}" for m in ("lab_a", "lab_b", "rchrom", "val")
+                          for k in ("std7", "std15", "grad15", "rel")) & frozenset(FEATURE_NAMES)
+CTEX_FEATURES = tuple(f"ctex{k}_{c}{m}" for k, m in (("", ""), ("", "_mean"), ("2", "")) for c in CTEX_CHANNELS)
 
 #: Hue-saturation table geometry for the corrosion colour model.
 N_HUE = 20
@@ -210,6 +246,29 @@ def _dark_line(grey: np.ndarray) -> np.ndarray:
     return local - lo
 
 
+def _ctex_bands(bgr: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """|Laplacian bands| of the red chromaticity (x 255) and the HSV value of an 8-bit BGR image
+    (H, W even): band 0 (the image's resolution) pooled by 2 x 2 means and band 1 (half
+    resolution), two lists of two (H/2, W/2) float32 maps. Few full-resolution temporaries: those
+    are the frame's costliest pixels."""
+    h, w = bgr.shape[:2]
+    half = (w // 2, h // 2)
+    b8, g8, r8 = cv2.split(bgr)
+    total = cv2.add(cv2.add(cv2.add(b8, g8, dtype=cv2.CV_32F), r8, dtype=cv2.CV_32F), 8.0)
+    rc = cv2.divide(r8, total, scale=255.0, dtype=cv2.CV_32F)
+    del total
+    v = cv2.max(cv2.max(b8, g8), r8).astype(np.float32)
+    band0, band1 = [], []
+    for x in (rc, v):
+        x1 = cv2.pyrDown(x)
+        up = cv2.pyrUp(x1, dstsize=(w, h))
+        cv2.absdiff(x, up, dst=up)
+        band0.append(cv2.resize(up, half, interpolation=cv2.INTER_AREA))
+        del up
+        band1.append(cv2.absdiff(x1, cv2.pyrUp(cv2.pyrDown(x1), dstsize=half)))
+    return band0, band1
+
+
 def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: dict | None = None) -> FeatureStack:
     """Features ``names`` (default all, see :data:`FEATURE_NAMES`) of an 8-bit BGR (or grey) image.
 
@@ -314,28 +373,46 @@ def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: d
         hbin = (hsv_s[:, :, 0].astype(np.int32) * N_HUE) >> 8
         sbin = (hsv_s[:, :, 1].astype(np.int32) * N_SAT) >> 8
         out["hs"] = (hbin * N_SAT + sbin).astype(np.float32)
-    if want & {"val", "val_mean", "val_std"}:
+    px: dict[str, np.ndarray] = {}  # per-pixel maps that the local statistics below read
+    if want & ({"val", "val_mean", "val_std"} | {n for n in STAT_FEATURES if n.startswith("val_")}):
         bb, gg, rr = cv2.split(bgr)
         v = cv2.max(cv2.max(bb, gg), rr).astype(np.float32) * np.float32(1 / 255)  # HSV value
+        px["val"] = cv2.GaussianBlur(v, (0, 0), 1.0)
         if "val" in want:
-            out["val"] = cv2.GaussianBlur(v, (0, 0), 1.0)
+            out["val"] = px["val"]
         if want & {"val_mean", "val_std"}:
             vm = cv2.blur(v, (REGION, REGION))
             out["val_mean"] = vm
             if "val_std" in want:
                 out["val_std"] = cv2.sqrt(np.maximum(cv2.blur(v * v, (REGION, REGION)) - vm * vm, 0))
-    if want & {"rchrom", "rchrom_mean"}:
+    if want & ({"rchrom", "rchrom_mean"} | {n for n in STAT_FEATURES if n.startswith("rchrom_")}):
         rchrom = cv2.GaussianBlur(r / (r + g + b + np.float32(0.03)), (0, 0), 1.0)
-        out["rchrom"] = rchrom
+        px["rchrom"] = rchrom
+        if "rchrom" in want:
+            out["rchrom"] = rchrom
         if "rchrom_mean" in want:
             out["rchrom_mean"] = cv2.blur(rchrom, (REGION, REGION))
-    if want & {"lab_a", "lab_b", "lab_a_mean", "lab_b_mean"}:
+    if want & ({"lab_a", "lab_b", "lab_a_mean", "lab_b_mean"} | {n for n in STAT_FEATURES if n.startswith("lab_")}):
         lab = cv2.cvtColor(cv2.GaussianBlur(bgr, (0, 0), 1.0), cv2.COLOR_BGR2LAB)
         for k, name in ((1, "lab_a"), (2, "lab_b")):
             ch = lab[:, :, k].astype(np.float32)
-            out[name] = ch
+            px[name] = ch
+            if name in want:
+                out[name] = ch
             if name + "_mean" in want:
                 out[name + "_mean"] = cv2.blur(ch, (REGION, REGION))
+    for name, x in px.items():
+        for box in STAT_BOXES:  # colour variation over the box
+            if f"{name}_std{box}" in want:
+                m = cv2.blur(x, (box, box))
+                var = cv2.subtract(cv2.blur(cv2.multiply(x, x), (box, box)), cv2.multiply(m, m))
+                out[f"{name}_std{box}"] = cv2.sqrt(cv2.max(var, 0.0))
+        if name + "_grad15" in want:  # colour edges per area
+            mag = cv2.magnitude(cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3))
+            out[name + "_grad15"] = cv2.blur(mag, (STAT_BOXES[1], STAT_BOXES[1]))
+        if name + "_rel" in want:  # relative to the surroundings' mean (illumination, white balance)
+            m = cv2.blur(x, (REL_BOX, REL_BOX))
+            out[name + "_rel"] = cv2.divide(x, cv2.add(m, 0.05)) if name == "val" else cv2.subtract(x, m)
     if "sat_mean" in want:
         out["sat_mean"] = cv2.blur(sat, (REGION, REGION))
     if want & {"rough", "rough_mean"}:
@@ -343,6 +420,15 @@ def compute_features(image: np.ndarray, names=None, *, level: int = 0, shared: d
         out["rough"] = cv2.blur(hp, (9, 9))
         if "rough_mean" in want:
             out["rough_mean"] = cv2.blur(out["rough"], (REGION, REGION))
+    if want & set(CTEX_FEATURES):
+        if "ctex" not in sh:  # computed at level 1 (band 0 pooled), shared between levels
+            sh["ctex"] = _ctex_bands(sh["bgr"][0])
+        pooled = [[_to_level(x, base) for x in chans] for chans in sh["ctex"]]  # at the features' level
+        for prefix, suffix, chans, box in (("ctex_", "", pooled[0], CTEX_BOXES[0]), ("ctex_", "_mean", pooled[0], CTEX_BOXES[1]),
+                                           ("ctex2_", "", pooled[1], CTEX2_BOX)):
+            for c, x in zip(CTEX_CHANNELS, chans):
+                if f"{prefix}{c}{suffix}" in want:
+                    out[f"{prefix}{c}{suffix}"] = cv2.blur(x, (box, box))
     if "rough2" in want:
         l2i = rel(2)
         m = cv2.blur(l2i, (5, 5))

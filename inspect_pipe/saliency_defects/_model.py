@@ -28,7 +28,9 @@ import numpy as np
 
 from ._features import _LINES, COLOUR_FEATURES, N_HUE, N_SAT, FeatureStack
 
-FORMAT = "inspect_pipe.defect_model/1"
+FORMAT = "inspect_pipe.defect_model/2"
+#: Model formats this reader takes (/1: the same without tree tables).
+READ_FORMATS = ("inspect_pipe.defect_model/1", FORMAT)
 N_BINS = 48
 PAIR_BINS = 16  # per axis of a joint (two-feature) table: 256 bins, one uint8 index
 CONTEXT_NAMES = ("z", "z_mean", "z_box15", "z_box31", "z_box63", "z_line", "z_line2")
@@ -70,6 +72,14 @@ class FeatureTable:
     pair: tuple[str, str] | None = None
     lo2: float = 0.0
     hi2: float = 1.0
+    #: a joint table over the cells of a binary partition of several features (semi-naive Bayes on
+    #: a learned grid): a decision tree of depth d on the bins of the stage's single tables
+    #: ``tree_inputs``; internal node i (heap order, children 2i+1, 2i+2) sends a pixel right when
+    #: the bin of feature ``tree_inputs[tree_split[i]]`` is > ``tree_thr[i]`` (split -1: all
+    #: left); the 2^d leaves are the table's bins
+    tree_inputs: tuple[str, ...] | None = None
+    tree_split: np.ndarray | None = None  # (2^d - 1,) int16
+    tree_thr: np.ndarray | None = None  # (2^d - 1,) uint8
 
     def bins(self, x: np.ndarray) -> np.ndarray:
         """Bin index per pixel, uint8; values past the last bin give 255 (see :meth:`lut`)."""
@@ -90,8 +100,31 @@ class FeatureTable:
             out = b * np.uint8(mul) if out is None else cv2.add(out, b)
         return out
 
+    def tree_cells(self, bins) -> np.ndarray:
+        """Leaf index (uint8) per pixel of a tree table; ``bins``: name -> uint8 bin map of each
+        of ``tree_inputs`` (the bins of the stage's single tables)."""
+        maps = [bins[n] for n in self.tree_inputs]
+        shape = maps[0].shape
+        n = maps[0].size
+        flat = np.stack([m.ravel() for m in maps]).ravel()  # input k's bins at k * n .. k * n + n - 1
+        split = self.tree_split.astype(np.int64)
+        offset = (np.maximum(split, 0) * n).astype(np.int64 if flat.size >= 2**31 else np.int32)
+        thr = np.where(split >= 0, self.tree_thr, 255).astype(np.uint8)  # no split: bin > 255 never
+        pos = np.arange(n, dtype=offset.dtype)
+        node = (flat[offset[0]:offset[0] + n] > thr[0]).astype(offset.dtype) + 1  # level 1: root decided
+        idx = np.empty(n, offset.dtype)
+        for _ in range(int(np.log2(split.size + 1)) - 1):
+            np.add(offset.take(node), pos, out=idx)
+            right = flat.take(idx) > thr.take(node)
+            node *= 2
+            node += 1
+            node += right
+        return (node - split.size).astype(np.uint8).reshape(shape)
+
     def bins_in(self, feats) -> np.ndarray:
         """Bin index per pixel of this table's feature(s) in ``feats`` (name -> map)."""
+        if self.tree_inputs:
+            raise ValueError("a tree table reads the bins of its stage's single tables (see table_bins)")
         if self.pair:
             return self.pair_bins(feats[self.pair[0]], feats[self.pair[1]])
         return self.bins(feats[self.name])
@@ -104,6 +137,21 @@ class FeatureTable:
     def lookup(self, feats, weight: float = 1.0) -> np.ndarray:
         """Weighted LLR per pixel; ``feats``: mapping name -> (H, W) float32."""
         return cv2.LUT(self.bins_in(feats), self.lut(weight))
+
+
+def table_bins(tables, feats):
+    """Bin index map (uint8) of each of ``tables`` on ``feats`` (name -> map), in order, one at a
+    time; a tree table reads the bins of the single tables before it."""
+    reads = {n for t in tables if t.tree_inputs for n in t.tree_inputs}
+    bins: dict[str, np.ndarray] = {}
+    for t in tables:
+        if t.tree_inputs:
+            yield t.tree_cells(bins)
+            continue
+        b = t.bins_in(feats)
+        if t.name in reads and not t.pair:
+            bins[t.name] = b
+        yield b
 
 
 @dataclass(frozen=True)
@@ -121,17 +169,18 @@ class Stage:
 
     @property
     def inputs(self) -> tuple[str, ...]:
-        """The maps the tables read (a pair table reads its two features)."""
+        """The maps the tables read (a pair table reads its two features, a tree table the bins
+        of the stage's single tables)."""
         out: list[str] = []
         for t in self.tables:
-            out += [n for n in (t.pair or (t.name,)) if n not in out]
+            out += [n for n in (t.tree_inputs or t.pair or (t.name,)) if n not in out]
         return tuple(out)
 
     def logit(self, feats, *, naive: bool = False) -> np.ndarray:
         """``feats``: mapping name -> (H, W) float32. ``naive``: unweighted tables + prior."""
         acc = None
-        for t, w in zip(self.tables, self.weights):
-            term = t.lookup(feats, 1.0 if naive else float(w))
+        for t, w, b in zip(self.tables, self.weights, table_bins(self.tables, feats)):
+            term = cv2.LUT(b, t.lut(1.0 if naive else float(w)))
             acc = term if acc is None else cv2.add(acc, term)
         return acc + np.float32(self.log_prior_odds if naive else self.bias)
 
@@ -265,6 +314,10 @@ def save_model(model: DefectModel, path: Path) -> None:
                 f = {"name": t.name, "lo": t.lo, "hi": t.hi, "categorical": t.categorical}
                 if t.pair:
                     f.update(pair=list(t.pair), lo2=t.lo2, hi2=t.hi2)
+                if t.tree_inputs:
+                    f.update(tree_inputs=list(t.tree_inputs))
+                    arrays[f"{cname}/{k}/{t.name}:split"] = t.tree_split.astype(np.int16)
+                    arrays[f"{cname}/{k}/{t.name}:thr"] = t.tree_thr.astype(np.uint8)
                 feats.append(f)
             stages.append(
                 {
@@ -303,7 +356,7 @@ def load_model(path: Path) -> DefectModel:
             arrays = {k: z[k] for k in z.files if k != "meta"}
     except (OSError, KeyError, ValueError, json.JSONDecodeError) as err:
         raise ValueError(f"not a defect model file ({err.__class__.__name__}: {err})") from None
-    if header.get("format") != FORMAT:
+    if header.get("format") not in READ_FORMATS:
         raise ValueError(f"unsupported model format {header.get('format')!r}, expected {FORMAT}")
     geo = header.get("feature_geometry", {})
     if geo.get("n_hue") != N_HUE or geo.get("n_sat") != N_SAT:
@@ -314,7 +367,9 @@ def load_model(path: Path) -> DefectModel:
         for k, s in enumerate(c["stages"]):
             tables = tuple(
                 FeatureTable(f["name"], float(f["lo"]), float(f["hi"]), arrays[f"{cname}/{k}/{f['name']}"], bool(f["categorical"]),
-                             tuple(f["pair"]) if f.get("pair") else None, float(f.get("lo2", 0.0)), float(f.get("hi2", 1.0)))
+                             tuple(f["pair"]) if f.get("pair") else None, float(f.get("lo2", 0.0)), float(f.get("hi2", 1.0)),
+                             tuple(f["tree_inputs"]) if f.get("tree_inputs") else None,
+                             arrays.get(f"{cname}/{k}/{f['name']}:split"), arrays.get(f"{cname}/{k}/{f['name']}:thr"))
                 for f in s["features"]
             )
             stages.append(Stage(tables, np.asarray(s["weights"], np.float32), float(s["bias"]), float(s["log_prior_odds"])))

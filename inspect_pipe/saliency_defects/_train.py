@@ -2,8 +2,10 @@
 
 Three passes over the training images (features are recomputed each pass to keep memory flat):
 1. sample pixels (all classes balanced per image, an ignore band around label boundaries),
-   build per-feature class-conditional histograms -> LLR tables, fit table weights by weighted
-   logistic regression (sample weights restore the true pixel prior);
+   build per-feature class-conditional histograms -> LLR tables (optionally joint tables of
+   feature pairs and one tree table: a joint table over the cells of a decision tree on the
+   features' bins), fit table weights by weighted logistic regression (sample weights restore the
+   true pixel prior);
 2. optional auto-context stage: the same on features of the stage-1 logit map;
 3. choose the operating point (threshold, hysteresis low threshold) that maximises F on the
    training images, with the class's evaluation tolerance and the speckle filter applied.
@@ -30,6 +32,7 @@ from ._model import (
     Stage,
     context_maps,
     sigmoid,
+    table_bins,
 )
 
 Loader = Callable[[], tuple[np.ndarray, np.ndarray]]
@@ -61,6 +64,8 @@ class ClassTrainConfig:
     l2: float = 1e-3
     seed: int = 0
     level: int = 0  # pyramid level of the features (1: half resolution, the map upsampled)
+    tree_depth: int = 0  # > 0: the first stage also has a tree table of this depth (at most 8)
+    tree_min_leaf: int = 200  # fewest training samples on either side of a tree split
 
     def __post_init__(self) -> None:
         unknown = (set(self.features) - set(FEATURE_NAMES) | set(self.context_raw) - set(self.features)
@@ -68,17 +73,32 @@ class ClassTrainConfig:
                    | {n for p in self.pairs for n in p} - set(self.features))
         if unknown:
             raise ValueError(f"unknown features {sorted(unknown)}")
+        if not 0 <= self.tree_depth <= 8:
+            raise ValueError(f"tree depth must be 0..8 (its leaves index a 256-entry table), got {self.tree_depth}")
 
 
 #: Crack features: the grey features whose tables earned a weight (ridge strengths, the darkness
 #: z-score, unsigned contrast and fine roughness scored ~0 next to the line detectors; the
 #: full-resolution 11 px line detector added nothing to the 22 px one on validation images).
 CRACK_FEATURES = ("int_cs", "ori_cs", "sym", "val", "rough2", "line2", "coh")
-#: Corrosion features: all but the crack evidence (ridges, darkness, dark lines: ~0 weight, and
-#: validation F unchanged without them).
-CORROSION_FEATURES = tuple(
-    f for f in FEATURE_NAMES if f not in ("ridge1", "ridge2", "ridge3", "dark", "line", "line2")
+#: Corrosion features: saliency (intensity and orientation contrast), colour and roughness, local
+#: colour statistics (variation over 7 and 15 px, colour edges, colour relative to the
+#: surroundings) and the texture energies of the red chromaticity and value at full resolution.
+#: Left out, with validation F unchanged without them: the crack evidence (ridges, darkness, dark
+#: lines), the colour centre-surround contrasts, symmetry, the coarse roughness, the 31 px region
+#: means and deviations (the relative features and the context stage carry the region), and the
+#: next band's chromaticity energy (``ctex2_r``, which, like the opponents' bands, lost synthetic
+#: rust with independent channel noise).
+CORROSION_FEATURES = (
+    "int_cs", "int_cs_abs", "ori_cs", "hs", "val", "rchrom", "rough", "lab_a", "lab_b", "rough_mean", "coh",
+    "lab_a_rel", "lab_b_rel", "rchrom_rel", "val_rel",
+    "lab_a_std7", "lab_b_std7", "rchrom_std7", "val_std7", "lab_a_std15", "lab_b_std15", "rchrom_std15", "val_std15",
+    "lab_a_grad15", "lab_b_grad15", "rchrom_grad15",
+    "ctex_r", "ctex_v", "ctex_r_mean", "ctex_v_mean", "ctex2_v",
 )
+#: Corrosion context maps: the 11 px line support of the logit left out (~0 weight; validation F
+#: unchanged without it), the 22 px one kept.
+CORROSION_CONTEXT = ("z", "z_mean", "z_box15", "z_box31", "z_box63", "z_line2")
 #: Crack context maps: the 11 px line support of the logit likewise dropped for the 22 px one, and
 #: the 7 and 31 px box means (small weights; validation F unchanged without them).
 CRACK_CONTEXT = ("z", "z_box15", "z_box63", "z_line2")
@@ -99,7 +119,8 @@ DEFAULT_CONFIGS = {
     ),
     "corrosion": ClassTrainConfig(
         cls="corrosion", features=CORROSION_FEATURES, needs_colour=True, tol_px=0.0, ignore_band_px=2,
-        pos_per_image=1500, neg_per_image=1500, context=2, smooth_sigma_px=0.5, min_area_px=64, level=1,
+        pos_per_image=1500, neg_per_image=1500, context=1, context_names=CORROSION_CONTEXT, smooth_sigma_px=0.5,
+        min_area_px=64, level=1, tree_depth=8,
     ),
     "surface": ClassTrainConfig(
         cls="surface", features=GREY_FEATURES, needs_colour=False, tol_px=0.0, ignore_band_px=1,
@@ -209,8 +230,79 @@ def _pair_tables(names, pairs, singles, pos: np.ndarray, neg: np.ndarray) -> lis
 
 def _llr_matrix(tables, x: np.ndarray, names) -> np.ndarray:
     feats = {n: x[:, j:j + 1].astype(np.float32) for j, n in enumerate(names)}
-    cols = [t.lut()[t.bins_in(feats).ravel().astype(int)] for t in tables]
+    cols = [t.lut()[b.ravel().astype(int)] for t, b in zip(tables, table_bins(tables, feats))]
     return np.stack(cols, axis=1).astype(np.float64)
+
+
+def _entropy_sum(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """sum over the two classes of w log(w / (p + q)) (minus the weighted entropy), elementwise."""
+    t = p + q
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(p > 0, p * np.log(p / t), 0.0) + np.where(q > 0, q * np.log(q / t), 0.0)
+    return np.nan_to_num(out)
+
+
+def _grow_tree(B: np.ndarray, y: np.ndarray, w: np.ndarray, depth: int, min_leaf: int) -> tuple[np.ndarray, np.ndarray]:
+    """A depth-``depth`` decision tree on the bin matrix ``B`` (n, F) uint8: at every node the
+    split (feature, bin threshold) with the largest weighted information gain about ``y``, level by
+    level, all nodes of a level at once (histograms of the bins per node). Returns (split, thr) in
+    heap order; a node that no split improves (or too few samples) gets split -1."""
+    n, F = B.shape
+    nb = 256
+    split = np.full(2**depth - 1, -1, np.int16)
+    thr = np.zeros(2**depth - 1, np.uint8)
+    node = np.zeros(n, np.int64)  # node of each sample, heap order
+    for d in range(depth):
+        first, cnt = 2**d - 1, 2**d
+        local = node - first
+        wp = np.bincount(local, weights=w * y, minlength=cnt)
+        wn = np.bincount(local, weights=w * (1 - y), minlength=cnt)
+        nc = np.bincount(local, minlength=cnt)
+        parent = _entropy_sum(wp, wn)
+        best = np.zeros(cnt)
+        for f in range(F):
+            idx = local * nb + B[:, f]
+            lp = np.cumsum(np.bincount(idx, weights=w * y, minlength=cnt * nb).reshape(cnt, nb), 1)
+            ln = np.cumsum(np.bincount(idx, weights=w * (1 - y), minlength=cnt * nb).reshape(cnt, nb), 1)
+            lc = np.cumsum(np.bincount(idx, minlength=cnt * nb).reshape(cnt, nb), 1)
+            gain = _entropy_sum(lp, ln) + _entropy_sum(wp[:, None] - lp, wn[:, None] - ln) - parent[:, None]
+            gain[(lc < min_leaf) | (nc[:, None] - lc < min_leaf)] = 0.0
+            t = gain.argmax(1)
+            g = gain[np.arange(cnt), t]
+            better = g > best
+            best[better] = g[better]
+            split[first:first + cnt][better] = f
+            thr[first:first + cnt][better] = t[better]
+        s, th = split[first:first + cnt][local], thr[first:first + cnt][local]
+        right = (s >= 0) & (B[np.arange(n), np.maximum(s, 0)] > th)
+        node = 2 * node + 1 + right
+    return split, thr
+
+
+def _tree_table(names, tables, x: np.ndarray, y: np.ndarray, w: np.ndarray, grow: np.ndarray,
+                depth: int, min_leaf: int) -> FeatureTable | None:
+    """The tree table of a stage: grown on the samples ``grow``, its leaf likelihoods p(leaf |
+    class) counted on the others (so the table's evidence is not the tree's own fit)."""
+    singles = [t for t in tables if not t.pair and not t.tree_inputs]
+    feats = {n: x[:, j:j + 1].astype(np.float32) for j, n in enumerate(names)}
+    B = np.stack([t.bins_in(feats).ravel() for t in singles], axis=1)
+    split, thr = _grow_tree(B[grow], y[grow], w[grow], depth, min_leaf)
+    used = sorted({int(k) for k in split if k >= 0})
+    if not used:  # no split gained anything: no table
+        return None
+    remap = np.full(len(singles), -1, np.int16)
+    remap[used] = np.arange(len(used))
+    probe = FeatureTable("tree", 0.0, float(2**depth), np.zeros(2**depth, np.float32), True,
+                         tree_inputs=tuple(singles[k].name for k in used),
+                         tree_split=np.where(split >= 0, remap[np.maximum(split, 0)], -1).astype(np.int16),
+                         tree_thr=thr)
+    leaf = probe.tree_cells({singles[k].name: B[:, k] for k in used}).astype(int)
+    est = ~grow
+    hp = np.bincount(leaf[est & (y == 1)], minlength=2**depth) + 1.0
+    hn = np.bincount(leaf[est & (y == 0)], minlength=2**depth) + 1.0
+    llr = np.log(hp / hp.sum()) - np.log(hn / hn.sum())
+    return FeatureTable("tree", 0.0, float(2**depth), llr.astype(np.float32), True,
+                        tree_inputs=probe.tree_inputs, tree_split=probe.tree_split, tree_thr=thr)
 
 
 def _logistic(X: np.ndarray, y: np.ndarray, w: np.ndarray, l2: float) -> tuple[np.ndarray, float]:
@@ -233,18 +325,24 @@ def _logistic(X: np.ndarray, y: np.ndarray, w: np.ndarray, l2: float) -> tuple[n
     return beta[:d].astype(np.float32), float(beta[d])
 
 
-def _fit_stage(names, acc: _Samples, l2: float, pairs=()) -> Stage:
+def _fit_stage(names, acc: _Samples, l2: float, pairs=(), tree_depth: int = 0, tree_min_leaf: int = 200,
+               seed: int = 0) -> Stage:
     pos = np.concatenate(acc.pos)
     neg = np.concatenate(acc.neg)
     tables = _tables(names, pos, neg)
     tables += _pair_tables(list(names), pairs, tables, pos, neg)
-    X = _llr_matrix(tables, np.concatenate([pos, neg]), names)
+    x = np.concatenate([pos, neg])
     y = np.concatenate([np.ones(len(pos)), np.zeros(len(neg))])
     # sample weights restore the true class frequencies of the (non-ignored) training pixels
     wp = acc.n_pos_total / max(len(pos), 1)
     wn = acc.n_neg_total / max(len(neg), 1)
     w = np.concatenate([np.full(len(pos), wp), np.full(len(neg), wn)])
     w /= w.mean()
+    if tree_depth:  # grown on a random half of the samples, its likelihoods counted on the other
+        grow = np.random.default_rng(seed + 1).random(len(y)) < 0.5
+        tree = _tree_table(names, tables, x, y, w, grow, tree_depth, tree_min_leaf)
+        tables += [tree] if tree is not None else []
+    X = _llr_matrix(tables, x, names)
     coef, bias = _logistic(X, y, w, l2)
     prior = float(np.log(max(acc.n_pos_total, 1) / max(acc.n_neg_total, 1)))
     return Stage(tuple(tables), coef, bias, prior)
@@ -293,7 +391,7 @@ def train_class(items: Sequence[Loader], cfg: ClassTrainConfig, *, log=print) ->
         fs = compute_features(img, names, level=cfg.level)
         pos_m, neg_m = _sample_masks(_gt_at(gt, cfg.level, fs.shape), cfg.ignore_band_px)
         _collect({n: fs[n] for n in names}, names, pos_m, neg_m, cfg, rng, acc)
-    stage1 = _fit_stage(names, acc, cfg.l2, cfg.pairs)
+    stage1 = _fit_stage(names, acc, cfg.l2, cfg.pairs, cfg.tree_depth, cfg.tree_min_leaf, cfg.seed)
     log(f"  {cfg.cls}: stage 1 on {sum(len(a) for a in acc.pos)} + {sum(len(a) for a in acc.neg)} px; "
         f"weights " + ", ".join(f"{n}={w:.2f}" for n, w in zip(stage1.names, stage1.weights)))
     stages = [stage1]

@@ -85,3 +85,28 @@ def test_half_resolution_features_are_local_and_shared_pyramids_change_nothing()
     g1 = compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1, shared=shared)
     assert np.array_equal(g0.data, compute_features(img, ("int_cs", "ori_cs", "coh")).data)
     assert np.array_equal(g1.data, compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1).data)
+
+
+def test_colour_statistics_read_texture_and_colour_relative_to_the_surroundings():
+    # GIVEN an even grey-green wall with one mottled rust patch (orange and dark brown mixed at
+    # random, rows and columns 384..447)
+    rng = np.random.default_rng(9)
+    img = np.full((512, 512, 3), (110, 128, 112), np.uint8)
+    mix = rng.random((64, 64, 1)).astype(np.float32)
+    patch = mix * np.array([40, 90, 170], np.float32) + (1 - mix) * np.array([30, 50, 90], np.float32)
+    img[384:448, 384:448] = np.clip(patch, 0, 255).astype(np.uint8)
+    names = ("lab_a_std7", "val_std15", "rchrom_grad15", "lab_a_rel", "val_rel", "ctex_r", "ctex_v", "ctex2_v")
+    # WHEN the features are computed at half resolution
+    f = compute_features(img, names, level=1)
+    # THEN on the paint beyond their reach from the patch (level-1 rows and columns 0..15) the
+    # variation and texture features are 0 and the colour equals its surroundings' (value ratio
+    # v / (v + 0.05)); inside the patch (200..215) variation and texture are positive and a* is
+    # above its surroundings' mean
+    far, inside = np.s_[0:16, 0:16], np.s_[200:216, 200:216]
+    for n in ("lab_a_std7", "val_std15", "rchrom_grad15", "ctex_r", "ctex_v", "ctex2_v"):
+        assert np.abs(f[n][far]).max() < 1e-3, n
+        assert f[n][inside].min() > 1e-3, n
+    v = 128 / 255
+    assert np.abs(f["lab_a_rel"][far]).max() < 1e-3
+    assert np.abs(f["val_rel"][far] - v / (v + 0.05)).max() < 1e-3
+    assert f["lab_a_rel"][inside].mean() > 10

@@ -71,7 +71,7 @@ def test_weight_choice_prefers_the_informative_map():
 # Golden figures: the shipped fusion on the fixtures (all from the 'eval' part), measured when the
 # parameters were committed. The crack figure is above both single engines (saliency 0.734,
 # onnx 0.836 on these images), so a fusion that degenerates to either one fails.
-GOLDEN = {"crack": 0.847, "corrosion": 0.787}
+GOLDEN = {"crack": 0.847, "corrosion": 0.754}
 GOLDEN_TOL = 0.01
 
 
