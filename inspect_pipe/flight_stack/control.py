@@ -94,21 +94,26 @@ class AccelObserver:
         """The acceleration the set-point just sent asks of a nominal vehicle."""
         self._applied = accel
 
-    def update(self, measured: float | None, dt: float, *, nominal: float = 0.0, speed: bool = False) -> float:
+    def update(self, measured: float | None, dt: float, *, nominal: float = 0.0) -> float:
         """New estimate from the IMU's ``measured`` acceleration since the last set-point;
-        ``nominal``: the nominal vehicle's own acceleration (drag), low-passed like the lag
-        when ``speed`` (it comes from a noisy speed estimate)."""
+        ``nominal``: the nominal vehicle's own acceleration (drag), low-passed with ``tau_s``
+        (it comes from a noisy speed estimate)."""
         if self.tau_s <= 0.0 or dt <= 0.0:
             return self.value
-        if speed:
-            self._nominal += (nominal - self._nominal) * min(1.0, dt / (self.tau_s + dt))
-            nominal = self._nominal
+        self._nominal += (nominal - self._nominal) * min(1.0, dt / (self.tau_s + dt))
+        nominal = self._nominal
         prev = self._expected
         self._expected = self._applied if prev is None else prev + (self._applied - prev) * min(1.0, dt / (self.lag_s + dt))
         if measured is not None and prev is not None:
             d = self.value + (self._expected + nominal - (measured - self.bias) - self.value) * min(1.0, dt / self.tau_s)
             self.value = max(-self.limit, min(self.limit, d))
         return self.value
+
+    def surprise(self, measured: float) -> float:
+        """How much more acceleration the IMU felt than the last set-point explains for this
+        vehicle (its nominal response less the shortfall learnt so far)."""
+        expected = (self._expected if self._expected is not None else self._applied) - self.value
+        return measured - self.bias - expected
 
 
 class VerticalMode(enum.Enum):
@@ -161,9 +166,7 @@ class FlightController:
         jolt at touchdown. (Judged against the nominal hover thrust instead, a light vehicle's
         ordinary climb at "hover thrust" was a touchdown: safety campaign, seed 4, a -29 % mass
         vehicle took a mode change at 2.5 m for the floor and fell.)"""
-        o = self.obs_z
-        expected = (o._expected if o._expected is not None else o._applied) - o.value
-        return az_measured - o.bias - expected
+        return self.obs_z.surprise(az_measured)
 
     def calibrate_at_rest(self, accel_measured: tuple[float, float, float] | None) -> None:
         """An IMU reading taken on the floor, motors off: it is the accelerometer's bias."""
@@ -243,8 +246,8 @@ class FlightController:
         # Rotor drag is part of the nominal response: only what drag does not explain is a
         # disturbance (wind).
         drag = p.accel_observer_drag_1_s
-        ax += self.obs_x.update(meas[0], dt, nominal=-drag * est.vx_m_s, speed=True)
-        ay += self.obs_y.update(meas[1], dt, nominal=-drag * est.vy_m_s, speed=True)
+        ax += self.obs_x.update(meas[0], dt, nominal=-drag * est.vx_m_s)
+        ay += self.obs_y.update(meas[1], dt, nominal=-drag * est.vy_m_s)
 
         amax = G * math.tan(p.max_tilt_rad)
         ax = max(-amax, min(amax, ax))
