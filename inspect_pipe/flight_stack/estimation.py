@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.messages import (
@@ -151,6 +152,8 @@ class RangeSlope:
         self.samples: list[tuple[float, float]] = []
         self._fit: float | None = None  # the line's slope over the current samples (cached)
         self._fit_valid = False
+        #: mean stamp of the samples the last rate was fitted to: the rate is the speed there
+        self.t_mid: float | None = None
 
     def add(self, t: float, range_m: float | None) -> None:
         self._fit_valid = False
@@ -174,6 +177,7 @@ class RangeSlope:
             den = sum((t - tm) ** 2 for t, _ in s)
             self._fit = None if den <= 0.0 else sum((t - tm) * (r - rm) for t, r in s) / den
             self._fit_valid = True
+            self.t_mid = tm
         return self._fit
 
 
@@ -240,6 +244,7 @@ class MAVStateUpdater:
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._range_rates: dict[str, float | None] = {"front": None, "left": None, "right": None}
+        self._v_hist: deque[tuple[float, float, float]] = deque()  # (t, carried vx, vy) over the last slope window
         self._yaw_hist: list[tuple[float, float]] = []  # (t, heading) over the last slope window
 
     def status(self, now: float, m: Measurements) -> SensorStatus:
@@ -251,8 +256,13 @@ class MAVStateUpdater:
         f_flow = ff is not None and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
         imu = m.imu
         ax, ay, az = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else (0.0, 0.0, 0.0)
-        b_stuck = b_flow and self._stuck["bottom"].check(bf.stamp_s, (bf.vx_m_s, bf.vy_m_s), (ax, ay))  # type: ignore[union-attr]
-        f_stuck = f_flow and self._stuck["front"].check(ff.stamp_s, (ff.vy_m_s, ff.vz_m_s), (ay, az))  # type: ignore[union-attr]
+        bx, by, bz = self.imu_bias
+        b_stuck = b_flow and self._stuck["bottom"].check(
+            bf.stamp_s, (bf.vx_m_s, bf.vy_m_s), (ax - bx, ay - by), reference=self._dr_v  # type: ignore[union-attr]
+        )
+        f_stuck = f_flow and self._stuck["front"].check(
+            ff.stamp_s, (ff.vy_m_s, ff.vz_m_s), (ay - by, az - bz), reference=(self._dr_v[1], None)  # type: ignore[union-attr]
+        )
         self._newly_stuck = {"bottom": b_stuck and not self._was_stuck["bottom"], "front": f_stuck and not self._was_stuck["front"]}
         self._was_stuck = {"bottom": b_stuck, "front": f_stuck}
         b_flow, f_flow = b_flow and not b_stuck, f_flow and not f_stuck
@@ -298,19 +308,32 @@ class MAVStateUpdater:
         # during a push, the vehicle slid into the wall). Instead the last speed is carried on
         # with the IMU's acceleration, leaking to zero (accelerometer bias) over
         # ``alarm_speed_leak_s``, so the speed loop brakes the vehicle to a stop.
-        if bflow is not None:
-            vx, vy = bflow.vx_m_s, bflow.vy_m_s
-        elif fflow is not None:
-            vx, vy = -self.front.rate, fflow.vy_m_s
+        bx, by, _ = self.imu_bias
+        if bflow is not None or fflow is not None:
+            if bflow is not None:
+                vx, vy = bflow.vx_m_s, bflow.vy_m_s
+            else:
+                vx, vy = -self.front.rate, fflow.vy_m_s  # type: ignore[union-attr]
+            # The speed an alarm mode would carry on: the measured one blended with the IMU
+            # (complementary filter, ``alarm_carry_tau_s``). Carried from the last flow reading
+            # alone, that reading's noise (0.08 m/s at rest) became a steady speed error, and the
+            # vehicle held "still" drifted 0.38 m while every range sensor was lost (safety
+            # campaign, seed 1 e1367).
+            kc = min(1.0, dt / (p.alarm_carry_tau_s + dt)) if dt > 0.0 else 1.0
+            cx, cy = self._dr_v[0] + (ax - bx) * dt, self._dr_v[1] + (ay - by) * dt
+            self._dr_v = (cx + (vx - cx) * kc, cy + (vy - cy) * kc)
         else:
             # The accelerometer's bias, learnt on the floor, is removed first: carried with it, the
             # speed settles at bias x leak time, and the speed loop holding it at 0 flew the
             # vehicle at 0.1 m/s into the wall it was held at (safety campaign, seed 4).
+            # The leak is for an axis no sonar measures; on one that a range rate corrects, it
+            # only pulled the speed towards zero against the measurement (a braking vehicle's
+            # speed 0.05 m/s low).
             k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
-            bx, by, _ = self.imu_bias
-            vx, vy = (self._dr_v[0] + (ax - bx) * dt) * k, (self._dr_v[1] + (ay - by) * dt) * k
-            vx, vy = self._range_rate_speeds(now, dt, vx, vy)
-        self._dr_v = (vx, vy)
+            vx, vy = self._dr_v[0] + (ax - bx) * dt, self._dr_v[1] + (ay - by) * dt
+            (vx, measured_x), (vy, measured_y) = self._range_rate_speeds(now, dt, vx, vy)
+            vx, vy = vx if measured_x else vx * k, vy if measured_y else vy * k
+            self._dr_v = (vx, vy)
         if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw)
 
@@ -347,6 +370,10 @@ class MAVStateUpdater:
             self._dr_vz = vz
 
         self._v_prev = (vx, vy)
+        hist = self._v_hist
+        hist.append((now, *self._dr_v))
+        while now - hist[0][0] > self._slopes["front"].window_s + p.sonar_latency_s + 0.5:
+            hist.popleft()
         est = StateEstimate(
             height_m=self.height.height_m,
             altitude_m=self.height.altitude_m,
@@ -428,32 +455,65 @@ class MAVStateUpdater:
             rates[name] = slope.rate(now) if fresh else None
         self._range_rates = rates
 
-    def _range_rate_speeds(self, now: float, dt: float, vx: float, vy: float) -> tuple[float, float]:
+    def _range_rate_speeds(
+        self, now: float, dt: float, vx: float, vy: float
+    ) -> tuple[tuple[float, bool], tuple[float, bool]]:
         """Alarm modes: no flow measures the horizontal speed, and the IMU-carried one (``vx``,
         ``vy``) drifts with the accelerometer's bias, so a station-keeping loop lets the vehicle
         creep away (safety campaign: bottom flow quality 0 during a link loss, 0.55 m in 4 s
         beside walls the side sonars heard 2.6-3.9 m away). Beyond Table I, the horizontal
         sonars' range rates then measure the speed along their axes (a wall ahead closing at
-        1 m/s: vx = +1), and the carried speed follows them with ``alarm_slope_tau_s``. A rate
-        far from the carried speed (``alarm_slope_gate_m_s``: a new surface entering the beam),
-        or left and right sonars disagreeing, is not used; nor while turning (the range to a
-        wall then changes without any translation)."""
+        1 m/s: vx = +1), and the carried speed follows them with ``alarm_slope_tau_s``.
+
+        A range rate is the slope of the last ``window_s`` of samples: the speed at their mean
+        stamp (less the sonar's latency), not now. It is compared with the estimate of that
+        moment and the difference corrects the carried speed, which already holds the IMU's
+        account of what changed since (compared with the speed now instead, a vehicle braking
+        as every range sensor went silent took the lagging rate for its speed and coasted at
+        0.14 m/s for 2.5 s: safety campaign, seed 1 e1007). A difference larger than
+        ``alarm_slope_gate_m_s`` (a new surface entering the beam), or left and right sonars
+        disagreeing, is not used; nor while turning (the range to a wall then changes without
+        any translation). Returns each axis's speed and whether a range rate corrected it."""
         p = self.p
         if self._turning(now):
-            return vx, vy
+            return (vx, False), (vy, False)
         r = self._range_rates
         k = min(1.0, dt / p.alarm_slope_tau_s)
         gate = p.alarm_slope_gate_m_s
 
-        def follow(v: float, measured: list[float]) -> float:
-            if not measured or max(measured) - min(measured) > 0.5 * gate:
-                return v
-            s = sum(measured) / len(measured)
-            return v + (s - v) * k if abs(s - v) <= gate else v
+        def innovation(name: str, sign: float, axis: int) -> float | None:
+            rate, t_mid = r[name], self._slopes[name].t_mid
+            if rate is None or t_mid is None:
+                return None
+            then = self._speed_at(t_mid - p.sonar_latency_s)
+            return sign * rate - (then[axis] if then is not None else (vx, vy)[axis])
 
-        sx = [-r["front"]] if r["front"] is not None else []
-        sy = [x for x in (None if r["left"] is None else -r["left"], r["right"]) if x is not None]
-        return follow(vx, sx), follow(vy, sy)
+        def follow(v: float, innov: list[float | None]) -> tuple[float, bool]:
+            d = [x for x in innov if x is not None]
+            if not d or max(d) - min(d) > 0.5 * gate:
+                return v, False
+            e = sum(d) / len(d)
+            return (v + e * k, True) if abs(e) <= gate else (v, False)
+
+        return (
+            follow(vx, [innovation("front", -1.0, 0)]),
+            follow(vy, [innovation("left", -1.0, 1), innovation("right", 1.0, 1)]),
+        )
+
+    def _speed_at(self, t: float) -> tuple[float, float] | None:
+        """The carried horizontal speed at time ``t`` (linear between ticks), from the history."""
+        hist = self._v_hist
+        if not hist or t < hist[0][0]:
+            return None
+        prev = hist[0]
+        for h in hist:
+            if h[0] >= t:
+                if h[0] == prev[0]:
+                    return h[1], h[2]
+                w = (t - prev[0]) / (h[0] - prev[0])
+                return prev[1] + w * (h[1] - prev[1]), prev[2] + w * (h[2] - prev[2])
+            prev = h
+        return prev[1], prev[2]
 
     def _turning(self, now: float) -> bool:
         """The heading turned more than ``alarm_slope_max_turn_rad`` over the last slope window
@@ -544,33 +604,49 @@ class StuckCheck:
         self._value: tuple[float, ...] | None = None
         self._repeats = 0
         self._dv: list[float] = []  # IMU speed change since the repeats began, per component
+        self._ref: tuple[float, ...] = ()  # the true value when the repeats began (best estimate)
         self._latched = False
 
-    def check(self, stamp_s: float, value: tuple[float, ...], rates: tuple[float, ...]) -> bool:
+    def check(
+        self, stamp_s: float, value: tuple[float, ...], rates: tuple[float, ...],
+        reference: tuple[float | None, ...] | None = None,
+    ) -> bool:
         """True while the sensor is stuck; call with every reading and the rates of change that
-        other sensors give for its components (a repeated stamp is ignored)."""
+        other sensors give for its components (a repeated stamp is ignored). ``reference``: the
+        best estimate of each component without this reading's noise (a filtered speed; None:
+        the reading itself), taken as the true value when the repeats begin. Judged from the
+        repeated reading instead, a stuck bottom flow 0.07 m/s off the true speed (its noise)
+        needed 0.22 m/s of real change to be found, and the vehicle crept 0.11 m inside the stop
+        line meanwhile (safety campaign, seed 1 e124)."""
         if stamp_s != self._stamp:
             if value == self._value and self._stamp is not None:
                 self._repeats += 1
+                if self._repeats == 1:  # the estimate has seen the first reading: the true value then
+                    ref = reference or (None,) * len(value)
+                    self._ref = tuple(v if r is None else r for v, r in zip(value, ref))
                 dt = stamp_s - self._stamp
                 self._dv = [dv + a * dt for dv, a in zip(self._dv, rates)]
             else:
                 self._repeats = 0
                 self._dv = [0.0] * len(value)
                 self._latched = False
+                self._ref = value
             self._stamp, self._value = stamp_s, value
         if self._repeats < self.samples - 1:
             return False
         # Once found, stuck until the value changes: the integrated change wanders back under
         # the limit when the vehicle brakes, and the stuck value was trusted again (safety
         # campaign, seed 3: flickering between the flow and the range-rate estimate at a wall).
-        self._latched = self._latched or max(abs(dv) for dv in self._dv) > self.change_limit
+        self._latched = self._latched or max(abs(x) for x in self._disagreement()) > self.change_limit
         return self._latched
 
+    def _disagreement(self) -> list[float]:
+        return [r + dv - v for r, dv, v in zip(self._ref, self._dv, self._value or ())]
+
     def likely_value(self) -> tuple[float, ...]:
-        """What the sensor would read now had it not stuck: its repeated value plus the change
-        the other sensors integrated since the repeats began."""
-        return tuple(v + dv for v, dv in zip(self._value or (), self._dv))
+        """What the sensor would read now had it not stuck: the reference when the repeats
+        began plus the change the other sensors integrated since."""
+        return tuple(r + dv for r, dv in zip(self._ref, self._dv))
 
 
 _HALF_PI = 1.5707963267948966

@@ -48,6 +48,9 @@ class EstimationParams:
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
+    alarm_carry_tau_s: float = param(
+        0.3, 0.0, 5.0, "s", "outside the alarm modes, the speed they would carry on is the measured one blended with the IMU at this time constant"
+    )
     alarm_slope_tau_s: float = param(
         0.3, 0.05, 5.0, "s", "alarm modes: the carried speed follows a horizontal sonar's range rate at this time constant"
     )
@@ -144,6 +147,9 @@ class ControlParams:
     )
     speed_integrate_band_m_s: float = param(
         0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
+    )
+    speed_integral_leak_s: float = param(
+        2.0, 0.0, 60.0, "s", "XY speed integrators leak at this time constant while the horizontal observers run (0: no leak)"
     )
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"

@@ -34,6 +34,10 @@ DRIFT_CASES = [
     (1, 927, "campaign_s1_e00927_wall_push.yaml", 0.863),  # bottom flow stuck during the loss
     (1, 627, "campaign_s1_e00627_wall_push.yaml", 0.452),  # bottom flow stuck during the loss
     (1, 170, "campaign_s1_e00170_wall_push.yaml", 0.418),  # loss while braking from 0.8 m/s
+    # every range sensor lost during the loss: braking (the lagging range rate was the speed),
+    # at rest (the last noisy flow reading was carried on)
+    (1, 1007, "campaign_s1_e01007_inspection_sweep.yaml", 0.389),
+    (1, 1367, "campaign_s1_e01367_corner_push.yaml", 0.351),
 ]
 
 

@@ -29,6 +29,10 @@ CASES = [
     # a stuck bottom flow at a wall (fresh seed 3); every range sensor lost at a wall (seed 4)
     (3, 1736, "campaign_s3_e01736_corner_push.yaml", 0.150, 0.10),
     (4, 1172, "campaign_s4_e01172_wall_push.yaml", 0.119, 0.10),
+    # a gust ends at a wall (the XY integrators now leak while the observers run); a stuck
+    # bottom flow whose reading was 0.07 m/s off the true speed (judged against the filtered one)
+    (1, 8, "campaign_s1_e00008_passage.yaml", 0.127, 0.10),
+    (1, 124, "campaign_s1_e00124_wall_push.yaml", 0.114, 0.10),
 ]
 
 

@@ -26,17 +26,20 @@ def test_fig6_top_attenuated_go_stops_at_one_metre_while_user_keeps_pushing(fly)
     # AND attenuation starts at 1.5 m (A)
     onset = next(r for r in approach if r.out.command.vx_m_s < 0.38)
     assert onset.dist_true.front == pytest.approx(1.5, abs=0.1)
-    # AND the vehicle stops at the 1 m stop line, at most 0.1 m past it (B)
+    # AND the vehicle stops at the 1 m stop line, at most 0.1 m past it (B: within 3 cm of it,
+    # the sonar's noise; the attenuation is linear in the distance, so the last centimetres are
+    # an exponential approach of about 1.25 s)
     assert min(r.dist_true.front for r in f.ticks) >= 0.9
-    rest = f.between(17.0, 19.0)
+    b = next(r.t for r in _flying(f.between(10.0, 19.0)) if r.dist_true.front <= 1.03)
+    assert b <= 18.5
+    rest = f.between(b, 19.0)
     assert statistics.fmean(r.dist_true.front for r in rest) == pytest.approx(1.0, abs=0.1)
     # AND the user command is kept (0.4 m/s) but ignored (B -> C)
     assert all(r.out.user_cmd.vx_m_s == pytest.approx(0.4) for r in rest)
-    # (ignored: 5 % of the push on average; the attenuation is linear, so the line's few cm of
-    # sonar noise give up to 10 %)
+    # (ignored: 5 % of the push on average; the line's few cm of sonar noise give up to 10 %)
     assert statistics.fmean(r.out.command.vx_m_s for r in rest) <= 0.02
     assert all(r.out.command.vx_m_s <= 0.04 for r in rest)
-    assert all(abs(r.vel_true[0]) < 0.08 for r in rest)
+    assert all(abs(r.vel_true[0]) < 0.08 for r in f.between(17.0, 19.0))
     assert f.result.status is ExitStatus.COMPLETED
 
 

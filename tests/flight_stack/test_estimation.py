@@ -290,3 +290,92 @@ def test_alarm_mode_carried_speed_removes_the_accelerometer_bias_learnt_on_the_f
     assert abs(est.vx_m_s) < 0.005
     # AND without it, it settles near bias x leak time (0.09 m/s), which the speed loop would fly
     assert carried((0.0, 0.0, 0.0)).vx_m_s > 0.06
+
+
+def test_a_stuck_flow_is_judged_against_the_filtered_speed_not_its_own_noisy_reading():
+    # GIVEN hovering at +0.03 m/s with a bottom flow that reads with 0.04 m/s of noise, which then
+    # sticks on a reading 0.07 m/s below the true speed while the vehicle speeds up at 0.15 m/s^2
+    rng = random.Random(3)
+    upd = MAVStateUpdater()
+    true_v, found = 0.03, None
+    for k in range(150):
+        t = 1.0 + 0.02 * k
+        stuck = k >= 50
+        if stuck:
+            true_v += 0.15 * 0.02
+        reading = -0.04 if stuck else true_v + rng.gauss(0.0, 0.04)
+        m = dataclasses.replace(
+            _meas(t, front_range=4.0), bottom_flow=BottomFlow(t, reading, 0.0, 200),
+            imu=ImuReading(t, 0.15 if stuck else 0.0, 0.0, 0.0),
+        )
+        est = upd.update(t, m)[0]
+        if found is None and est.mode == EstimationMode.TOF_FRONT:
+            found = (t - 2.0, est.vx_m_s, true_v)
+    # THEN it is found once the IMU's change and the reading's offset together pass 0.15 m/s
+    # (about 0.55 s), not only once the IMU's change alone does (1 s)
+    assert found is not None and found[0] < 0.75
+    # AND the speed taken over is the true one, not the stuck reading plus the change
+    assert found[1] == pytest.approx(found[2], abs=0.03)
+
+
+def _braking_at_a_wall(upd, *, flows_until=2.0, brake_from=2.0, seconds=2.0):
+    """0.4 m/s towards a wall 4 m ahead, braking at 0.5 m/s^2 from ``brake_from``; the flows (and
+    the bottom sonar) go silent at ``flows_until``, leaving the TeraRanger and the horizontal sonars
+    (mode -1: 10 Hz, 0.05 s latency). Yields (t, estimate, true speed)."""
+
+    def vel(t):
+        return 0.4 if t < brake_from else max(0.0, 0.4 - 0.5 * (t - brake_from))
+
+    def travelled(t):
+        if t < brake_from:
+            return 0.4 * (t - 1.0)
+        tb = min(t - brake_from, 0.8)
+        return 0.4 * (brake_from - 1.0) + 0.4 * tb - 0.25 * tb * tb
+
+    for k in range(int(seconds / 0.02)):
+        t = 1.0 + 0.02 * k
+        s = math.floor(round((t - 0.05) / 0.1, 6)) / 10.0  # the last sonar sample delivered by now
+        flows = t < flows_until
+        m = Measurements(
+            bottom_flow=BottomFlow(t, vel(t), 0.0, 200) if flows else None,
+            bottom_sonar=RangeReading(t, 1.5) if flows else None,
+            bottom_tof=RangeReading(t, 1.5),
+            front_sonar=RangeReading(s + 0.05, 4.0 - travelled(s)),
+            left_sonar=RangeReading(s + 0.05, 2.5),
+            right_sonar=RangeReading(s + 0.05, 3.0),
+            imu=ImuReading(t, -0.5 if brake_from <= t < brake_from + 0.8 else 0.0, 0.0, 0.0, 0.0),
+        )
+        yield t, upd.update(t, m)[0], vel(t)
+
+
+def test_alarm_mode_range_rates_are_compared_with_the_speed_of_their_moment():
+    # GIVEN the flows going silent as the vehicle starts braking at 0.5 m/s^2 in front of a wall
+    errors = [abs(est.vx_m_s - v) for t, est, v in _braking_at_a_wall(MAVStateUpdater()) if t >= 2.0]
+    # THEN the carried speed follows the braking: the front sonar's range rate, a slope over the
+    # last 0.45 s of samples, is the speed of a quarter of a second ago (0.1 m/s more), and is
+    # compared with the estimate of that moment, not with the speed now (0.12 m/s off); nor does
+    # the alarm modes' leak pull a measured axis towards zero (0.05 m/s off)
+    assert max(errors) < 0.03
+
+
+def test_alarm_mode_carries_on_the_filtered_speed_not_the_last_noisy_reading():
+    # GIVEN hovering still with a bottom flow that reads with 0.04 m/s of noise, when every range
+    # sensor goes silent (mode -2; the IMU feels nothing), at 20 different moments
+    carried = []
+    for seed in range(20):
+        rng = random.Random(seed)
+        upd = MAVStateUpdater()
+        for k in range(100):
+            t = 1.0 + 0.02 * k
+            live = k < 60
+            m = Measurements(
+                bottom_flow=BottomFlow(t, rng.gauss(0.0, 0.04), rng.gauss(0.0, 0.04), 200) if live else None,
+                bottom_sonar=RangeReading(t, 1.5) if live else None,
+                imu=ImuReading(t, 0.0, 0.0, 0.0, 0.0),
+            )
+            est = upd.update(t, m)[0]
+        assert est.mode == EstimationMode.ALARM_NONE
+        carried.append(math.hypot(est.vx_m_s, est.vy_m_s))
+    # THEN the speed carried on is the flow blended with the IMU (0.3 s): a few mm/s, where the
+    # last reading alone would be 0.05 m/s on average (and held, it drifts the vehicle 0.1 m in 2 s)
+    assert max(carried) < 0.025
