@@ -48,6 +48,9 @@ class EstimationParams:
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
+    alarm_leak_max_m_s2: float = param(
+        0.04, 0.0, 1.0, "m/s^2", "alarm modes: the horizontal speed's leak removes at most this much per second"
+    )
     alarm_carry_tau_s: float = param(
         0.3, 0.0, 5.0, "s", "outside the alarm modes, the speed they would carry on is the measured one blended with the IMU at this time constant"
     )

@@ -379,3 +379,33 @@ def test_alarm_mode_carries_on_the_filtered_speed_not_the_last_noisy_reading():
     # THEN the speed carried on is the flow blended with the IMU (0.3 s): a few mm/s, where the
     # last reading alone would be 0.05 m/s on average (and held, it drifts the vehicle 0.1 m in 2 s)
     assert max(carried) < 0.025
+
+
+def _coast_in_mode_minus_two(vx0, *, yaw_rate=0.0, seconds=1.0):
+    """Flow-measured speed ``vx0`` (heading frame) for 1 s, then every range sensor lost while the
+    vehicle coasts (the IMU feels nothing) and the heading turns at ``yaw_rate``."""
+    upd = MAVStateUpdater()
+    est = None
+    for k in range(int((1.0 + seconds) / 0.02)):
+        t = 1.0 + 0.02 * k
+        live = k < 50
+        yaw = 0.0 if live else yaw_rate * (t - 2.0)
+        m = Measurements(
+            bottom_flow=BottomFlow(t, vx0, 0.0, 200) if live else None,
+            bottom_sonar=RangeReading(t, 1.5) if live else None,
+            imu=ImuReading(t, 0.0, 0.0, 0.0, yaw),
+        )
+        est = upd.update(t, m)[0]
+    return est
+
+
+def test_alarm_mode_carried_speed_turns_with_the_heading_and_its_leak_is_capped():
+    # GIVEN every range sensor lost while coasting at 0.3 m/s and yawing at 0.5 rad/s for 1 s
+    est = _coast_in_mode_minus_two(0.3, yaw_rate=0.5)
+    assert est.mode == EstimationMode.ALARM_NONE
+    # THEN the speed, fixed in the hold, is carried turned the other way in the heading frame
+    # (0.5 rad: (0.26, -0.14) m/s), not left along the nose
+    assert math.atan2(est.vy_m_s, est.vx_m_s) == pytest.approx(-0.5, abs=0.08)
+    assert math.hypot(est.vx_m_s, est.vy_m_s) == pytest.approx(0.3, abs=0.06)
+    # AND the leak takes at most 0.04 m/s per second from a real speed (3 s alone: 0.5 -> 0.36)
+    assert _coast_in_mode_minus_two(0.5).vx_m_s == pytest.approx(0.46, abs=0.01)
