@@ -311,17 +311,23 @@ class MAVStateUpdater:
         # ``alarm_speed_leak_s``, so the speed loop brakes the vehicle to a stop.
         bx, by, _ = self.imu_bias
         if bflow is not None or fflow is not None:
+            cx, cy = self._carry(ax - bx, ay - by, dt)
             if bflow is not None:
                 vx, vy = bflow.vx_m_s, bflow.vy_m_s
             else:
-                vx, vy = -self.front.rate, fflow.vy_m_s  # type: ignore[union-attr]
+                # Modes 2 and 3: vx is the front range's rate, which is the speed only while the
+                # heading holds: turning, the range to a wall at an angle changes without any
+                # translation. Pushed while yawing at 0.11 rad/s, the rate said 0.2 m/s while the
+                # vehicle sped up to 0.77 m/s, and the stop came 0.10 m past the line (safety
+                # campaign, seed 1 e433). While turning, vx is carried on with the IMU instead.
+                turning = self._yaw is not None and self._turning(now)  # no heading known: Table I as is
+                vx, vy = (cx if turning else -self.front.rate), fflow.vy_m_s  # type: ignore[union-attr]
             # The speed an alarm mode would carry on: the measured one blended with the IMU
             # (complementary filter, ``alarm_carry_tau_s``). Carried from the last flow reading
             # alone, that reading's noise (0.08 m/s at rest) became a steady speed error, and the
             # vehicle held "still" drifted 0.38 m while every range sensor was lost (safety
             # campaign, seed 1 e1367).
             kc = min(1.0, dt / (p.alarm_carry_tau_s + dt)) if dt > 0.0 else 1.0
-            cx, cy = self._carry(ax - bx, ay - by, dt)
             self._dr_v = (cx + (vx - cx) * kc, cy + (vy - cy) * kc)
         else:
             # The accelerometer's bias, learnt on the floor, is removed first: carried with it, the

@@ -33,6 +33,8 @@ CASES = [
     # bottom flow whose reading was 0.07 m/s off the true speed (judged against the filtered one)
     (1, 8, "campaign_s1_e00008_passage.yaml", 0.127, 0.10),
     (1, 124, "campaign_s1_e00124_wall_push.yaml", 0.114, 0.10),
+    # mode 2 (bottom flow quality zero) during a push while yawing: vx carried with the IMU
+    (1, 433, "campaign_s1_e00433_push_yaw.yaml", 0.10007, 0.05),
 ]
 
 

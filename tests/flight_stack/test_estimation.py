@@ -409,3 +409,28 @@ def test_alarm_mode_carried_speed_turns_with_the_heading_and_its_leak_is_capped(
     assert math.hypot(est.vx_m_s, est.vy_m_s) == pytest.approx(0.3, abs=0.06)
     # AND the leak takes at most 0.04 m/s per second from a real speed (3 s alone: 0.5 -> 0.36)
     assert _coast_in_mode_minus_two(0.5).vx_m_s == pytest.approx(0.46, abs=0.01)
+
+
+def test_mode_two_while_turning_carries_vx_with_the_imu_not_the_front_range_rate():
+    # GIVEN 0.4 m/s towards a wall ahead (bottom flow), then the bottom flow's quality drops to
+    # zero (mode 2: vx from the front range's rate) while the operator yaws at 0.11 rad/s and the
+    # vehicle speeds up at 0.5 m/s^2; the wall, now at an angle, closes at only 0.2 m/s on the sonar
+    upd = MAVStateUpdater()
+    est = None
+    for k in range(100):
+        t = 1.0 + 0.02 * k
+        s = math.floor(round((t - 0.05) / 0.1, 6)) / 10.0
+        mode1 = t < 2.0
+        front = 3.0 - 0.4 * (s - 1.0) if s < 2.0 else 2.6 - 0.2 * (s - 2.0)
+        m = Measurements(
+            bottom_flow=BottomFlow(t, 0.4, 0.0, 200) if mode1 else None,
+            bottom_sonar=RangeReading(t, 1.5) if mode1 else None,
+            bottom_tof=RangeReading(t, 1.5),
+            front_flow=FrontFlow(t, 0.0, 0.0, 200),
+            front_sonar=RangeReading(s + 0.05, front),
+            imu=ImuReading(t, 0.0 if mode1 else 0.5, 0.0, 0.0, 0.0 if mode1 else 0.11 * (t - 2.0)),
+        )
+        est = upd.update(t, m)[0]
+    # THEN vx follows the IMU (0.9 m/s after 1 s), not the range's 0.2 m/s
+    assert est.mode == EstimationMode.TOF_FRONT
+    assert est.vx_m_s == pytest.approx(0.9, abs=0.12)
