@@ -178,7 +178,10 @@ def run(data: Path) -> str:
          f"(`--engine saliency`{_d('saliency')}), fused (`--engine fused`{_d('fused')})"),
         "",
         (f"Network `{default_onnx_path().name}` ({meta['training']['n_params']} parameters, half-resolution U-Net, best "
-         f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}), "
+         f"validation step {meta['metrics']['best_step']}, stopped: {meta['metrics']['stopped'].get('reason', '?')}"
+         + (f"; corrosion fine-tuning phase: best step {meta['metrics']['phase2'].get('best_ft_step')} of "
+            f"{meta['metrics']['phase2'].get('stopped', {}).get('step', '?')}" if "phase2" in meta["metrics"] else "")
+         + "), "
          "trained on the 'train' part minus its validation images; saliency model `defects_v1.npz`. Every figure is "
          "on the 'eval' part, which neither model saw. Operating points: each engine's own (saliency: training "
          "split; network: validation split)."),

@@ -241,7 +241,7 @@ def train(
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
-    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: stop training after this many minutes.", min=1)] = 85.0,
+    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: phase 1 stops after this many minutes, phase 2 (corrosion fine-tuning) within 3 more.", min=1)] = 85.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
@@ -302,5 +302,7 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> 
     if missing:
         raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
     ckpt = out.with_suffix(".pt")
-    train_net(data, ckpt, OnnxTrainConfig(time_budget_s=60 * time_budget_min), log=typer.echo)
+    # phase 1 within the budget, both phases (phase 2: corrosion fine-tuning) within 3 more minutes
+    cfg = OnnxTrainConfig(time_budget_s=60 * time_budget_min, total_time_budget_s=60 * (time_budget_min + 3))
+    train_net(data, ckpt, cfg, log=typer.echo)
     export_onnx(ckpt, out, version=version, log=typer.echo)

@@ -3,8 +3,11 @@
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
         -o inspect_pipe/saliency_defects/models/defects_unet_v1.onnx --ckpt bench/_work/onnx/unet.pt
 
-Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx``. ``--export-only`` exports
-an existing checkpoint (e.g. of a run stopped early).
+Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx`` (phase 1, then phase 2:
+the corrosion fine-tuning). ``--export-only`` exports an existing checkpoint (e.g. of a run
+stopped early); ``--finetune-from PHASE1.pt`` runs phase 2 alone from a phase-1 checkpoint
+trained with the same settings (the shipped model: phase 2 from the phase-1 checkpoint of
+2026-11-22 12:55).
 """
 
 from __future__ import annotations
@@ -12,6 +15,30 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+
+
+def _finetune_only(src: Path, ckpt: Path, cfg, data: Path) -> None:
+    """Phase 2 from a phase-1 checkpoint written with the same phase-1 settings (so that the
+    result equals a whole run of ``train``); a different phase-1 configuration is an error."""
+    import shutil
+
+    import torch
+
+    from inspect_pipe.saliency_defects._onnx_train import finetune
+
+    ck = torch.load(src, weights_only=False)
+    if "phase1_best" in ck:
+        raise SystemExit(f"error: {src} already holds a phase-2 model")
+    # phase-1 settings: the fields the checkpoint records, less phase 2's own
+    theirs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in ck["config"].items()
+              if not k.startswith("ft_") and k != "total_time_budget_s"}
+    mine = {k: v for k, v in dataclasses.asdict(cfg).items() if k in theirs}
+    if mine != theirs:
+        diff = sorted(k for k in mine if mine[k] != theirs.get(k))
+        raise SystemExit(f"error: {src} was trained with other phase-1 settings: {diff}")
+    if src.resolve() != ckpt.resolve():
+        shutil.copyfile(src, ckpt)
+    finetune(ckpt, cfg, root=data, log=lambda s: print(s, flush=True))
 
 
 def main(argv=None) -> None:
@@ -26,6 +53,8 @@ def main(argv=None) -> None:
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--ckpt", type=Path, default=None, help="checkpoint (default: OUT with .pt)")
     ap.add_argument("--export-only", action="store_true")
+    ap.add_argument("--finetune-from", type=Path, default=None,
+                    help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
     for f in dataclasses.fields(OnnxTrainConfig):
         if f.type in ("int", "float"):
             ap.add_argument("--" + f.name.replace("_", "-"), type=eval(f.type), default=f.default)
@@ -35,7 +64,10 @@ def main(argv=None) -> None:
         cfg = OnnxTrainConfig(**{f.name: getattr(a, f.name) for f in dataclasses.fields(OnnxTrainConfig)
                                  if hasattr(a, f.name)})
         ckpt.parent.mkdir(parents=True, exist_ok=True)
-        train(a.data, ckpt, cfg, log=lambda s: print(s, flush=True))
+        if a.finetune_from is not None:
+            _finetune_only(a.finetune_from, ckpt, cfg, a.data)
+        else:
+            train(a.data, ckpt, cfg, log=lambda s: print(s, flush=True))
     export_onnx(ckpt, a.out, log=lambda s: print(s, flush=True))
 
 

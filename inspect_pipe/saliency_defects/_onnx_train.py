@@ -64,6 +64,16 @@ class OnnxTrainConfig:
     crack_centre_p: float = 0.6  # share of crack crops centred on a crack pixel
     widths: tuple[int, ...] = (16, 32, 64, 128)
     dw_levels: int = 2  # levels (from the 1/2-res one) with depthwise-separable blocks
+    # phase 2: fine-tuning from phase 1's best checkpoint with more context for corrosion (larger
+    # crops), a soft-F1 term on the corrosion channel and a lower lr; 0 steps: no phase 2
+    ft_steps: int = 3000
+    ft_crop_px: int = 256  # corrosion crops in phase 2 (crack, surface keep crop_px)
+    ft_corrosion_batch: int = 4  # corrosion crops per step in phase 2 (crack, surface: per_class_batch)
+    ft_lr: float = 5e-4
+    ft_soft_f1: float = 1.0  # weight of (1 - soft F1 over the batch) on the corrosion channel
+    ft_val_every: int = 250
+    ft_time_budget_s: float = 30 * 60
+    total_time_budget_s: float = 88 * 60  # both phases (phase 2 gets what phase 1 left, up to ft_time_budget_s)
 
 
 # ----------------------------------------------------------------------------- network
@@ -204,14 +214,15 @@ def _normalise(x01: np.ndarray) -> np.ndarray:
     return ((x01 - np.asarray(INPUT_MEAN, np.float32)) / np.asarray(INPUT_STD, np.float32)).transpose(2, 0, 1)
 
 
-def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.Generator):
+def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.Generator,
+           classes=CLASSES, crop_px: int | None = None, n: int | None = None):
     xs, ys, cs = [], [], []
     for ci, c in enumerate(CLASSES):
-        if not train.get(c):
+        if not train.get(c) or c not in classes:
             continue
-        for _ in range(cfg.per_class_batch):
+        for _ in range(n or cfg.per_class_batch):
             it = train[c][int(rng.integers(len(train[c])))]
-            rgb, gt = _crop(it, cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
+            rgb, gt = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
             x, g = _augment(rgb, gt, rng)
             if c == "crack":  # 1-px labels of a 2-px-tolerance protocol: learn a 3-px wide line
                 g = cv2.dilate(g.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
@@ -288,22 +299,13 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
         frac = max((step - warm) / max(1, cfg.max_steps - warm), (time.monotonic() - t_train) / t_left)
         return cfg.lr * 0.5 * (1 + math.cos(math.pi * min(1.0, frac)))
 
-    pos_weight = {"corrosion": 1.0, "crack": 3.0, "surface": 1.0}
     best, best_score, bad, step, loss_avg = None, -1.0, 0, 0, None
     reason = "max_steps"
     while step < cfg.max_steps:
         for g in opt.param_groups:
             g["lr"] = lr_at(step)
         x, y, c = _batch(train_items, cfg, rng)
-        xt, yt = torch.from_numpy(x), torch.from_numpy(y)
-        p = net(xt)
-        p = p[torch.arange(len(c)), torch.from_numpy(c)]  # each sample's own class channel
-        p = p.clamp(1e-6, 1 - 1e-6)
-        w = torch.tensor([pos_weight[CLASSES[i]] for i in c])[:, None, None]
-        bce = -(w * yt * torch.log(p) + (1 - yt) * torch.log(1 - p)).mean()
-        inter = (p * yt).sum((1, 2))
-        dice = 1 - (2 * inter + 1) / (p.sum((1, 2)) + yt.sum((1, 2)) + 1)
-        loss = bce + 0.5 * dice.mean()
+        loss = _loss(net, x, y, c)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -336,6 +338,118 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     ck = torch.load(ckpt, weights_only=False)
     ck["stopped"] = {"step": step, "reason": reason, "wall_s": round(time.monotonic() - t0)}
     torch.save(ck, ckpt)
+    if cfg.ft_steps > 0:  # phase 2 gets what is left of the whole budget, at most ft_time_budget_s
+        left = cfg.total_time_budget_s - (time.monotonic() - t0)
+        best = finetune(ckpt, cfg, items=(train_items, val_items), log=log, budget_s=max(60.0, left))
+    return best
+
+
+_POS_WEIGHT = {"corrosion": 1.0, "crack": 3.0, "surface": 1.0}
+
+
+def _loss(net, x, y, c, soft_f1: float = 0.0):
+    """BCE (crack positives weighted) + 0.5 soft Dice per sample, each sample on its own class's
+    channel; with ``soft_f1`` > 0 the corrosion samples get BCE + soft_f1 * (1 - soft F1 over the
+    whole batch: the summed-counts F1 of the evaluation protocol) instead."""
+    import torch
+
+    xt, yt = torch.from_numpy(x), torch.from_numpy(y)
+    p = net(xt)
+    p = p[torch.arange(len(c)), torch.from_numpy(c)]  # each sample's own class channel
+    p = p.clamp(1e-6, 1 - 1e-6)
+    w = torch.tensor([_POS_WEIGHT[CLASSES[i]] for i in c])[:, None, None]
+    bce_px = -(w * yt * torch.log(p) + (1 - yt) * torch.log(1 - p))
+    inter = (p * yt).sum((1, 2))
+    dice = 1 - (2 * inter + 1) / (p.sum((1, 2)) + yt.sum((1, 2)) + 1)
+    if soft_f1 <= 0:
+        return bce_px.mean() + 0.5 * dice.mean()
+    corr = torch.from_numpy(c == CLASSES.index("corrosion"))
+    loss = bce_px.mean()
+    if (~corr).any():
+        loss = loss + 0.5 * dice[~corr].mean() * float((~corr).sum()) / len(c)
+    if corr.any():
+        pc, yc = p[corr], yt[corr]
+        tp = (pc * yc).sum()
+        f1 = 2 * tp / (pc.sum() + yc.sum() + 1)
+        loss = loss + soft_f1 * (1 - f1) * float(corr.sum()) / len(c)
+    return loss
+
+
+def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, items=None,
+             log: Callable[[str], None] = print, budget_s: float | None = None) -> dict:
+    """Phase 2: from the best phase-1 checkpoint at ``ckpt``, ``cfg.ft_steps`` steps with the
+    corrosion crops at ``cfg.ft_crop_px`` (more context), the crack and surface crops as in phase
+    1, the soft-F1 term on the corrosion channel, BatchNorm statistics frozen (the two crop sizes
+    run as two forward passes), AdamW at ``cfg.ft_lr`` with a cosine decay. Validated every
+    ``cfg.ft_val_every`` steps; the checkpoint is replaced only when the mean validation F beats
+    the best so far (phase 1's included). Seeded with ``cfg.seed + 1``: given the phase-1
+    checkpoint the phase is step-for-step reproducible (unless cut by its time budget:
+    ``cfg.ft_time_budget_s``, or ``budget_s`` when smaller; the cosine then ends there)."""
+    import torch
+
+    torch.manual_seed(cfg.seed + 1)
+    torch.set_num_threads(cfg.threads)
+    cv2.setNumThreads(1)
+    rng = np.random.default_rng(cfg.seed + 1)
+    train_items, val_items = items if items is not None else load_parts(root)[:2]
+    t0 = time.monotonic()
+    ck = torch.load(ckpt, weights_only=False)
+    p1 = ck["best"]
+    net = build_net(tuple(ck["config"]["widths"]), dw_levels=ck["config"]["dw_levels"])
+    net.load_state_dict(ck["state"])
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.ft_lr, weight_decay=cfg.weight_decay)
+    n = cfg.ft_steps
+    budget = min(cfg.ft_time_budget_s, budget_s if budget_s is not None else math.inf)
+    best, best_score = dict(p1), float(p1["mean_F"])
+    log(f"phase 2: {n} steps from step {p1['step']} (mean val F {best_score:.4f}), corrosion crops "
+        f"{cfg.ft_crop_px} px x {cfg.ft_corrosion_batch}, lr {cfg.ft_lr:g}, soft F1 {cfg.ft_soft_f1:g}")
+    reason, step, loss_avg = "ft_steps", 0, None
+    others = tuple(c for c in CLASSES if c != "corrosion")
+    net.eval()  # BatchNorm statistics frozen; the affine parameters still learn
+    while step < n:
+        # cosine over the steps, or over the time budget when that ends first (2 minutes of grace:
+        # the time term never decides the early steps of a run that ends within its budget)
+        grace = min(120.0, budget / 2)
+        frac = max(step / n, (time.monotonic() - t0 - grace) / (budget - grace))
+        for g in opt.param_groups:
+            g["lr"] = cfg.ft_lr * 0.5 * (1 + math.cos(math.pi * min(1.0, frac)))
+        x1, y1, c1 = _batch(train_items, cfg, rng, classes=("corrosion",), crop_px=cfg.ft_crop_px,
+                            n=cfg.ft_corrosion_batch)
+        x2, y2, c2 = _batch(train_items, cfg, rng, classes=others)
+        l1 = _loss(net, x1, y1, c1, cfg.ft_soft_f1)
+        l2 = _loss(net, x2, y2, c2)
+        loss = (l1 * len(c1) + l2 * len(c2)) / (len(c1) + len(c2))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        lv = loss.item()
+        loss_avg = lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
+        if step % 50 == 0:
+            log(f"ft step {step} loss {loss_avg:.4f} ({time.monotonic() - t0:.0f} s)")
+        over_time = time.monotonic() - t0 > budget
+        if step % cfg.ft_val_every == 0 or step == n or over_time:
+            v = validate(net, val_items)
+            net.eval()
+            score = float(np.mean([r["F"] for r in v.values()]))
+            log(f"ft val step {step}: " + ", ".join(f"{k} F {r['F']:.3f} @ {r['threshold_u8']}" for k, r in v.items())
+                + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
+            if round(score, 4) > round(best_score, 4):  # phase 1's figure is stored rounded: a tie is no gain
+                best_score = score
+                best = {"step": p1["step"], "ft_step": step, "val": v, "mean_F": round(score, 4)}
+                ck2 = dict(ck, state=net.state_dict(), best=best, phase1_best=p1, config=asdict(cfg))
+                torch.save(ck2, ckpt)
+            if over_time:
+                reason = f"time budget {budget:.0f} s"
+                break
+    ck = torch.load(ckpt, weights_only=False)
+    ck["config"] = asdict(cfg)
+    ck.setdefault("phase1_best", p1)
+    ck["ft_stopped"] = {"step": step, "reason": reason, "wall_s": round(time.monotonic() - t0)}
+    torch.save(ck, ckpt)
+    kept = f"best step {best['ft_step']}" if "ft_step" in best else "no gain, phase 1's network kept"
+    log(f"phase 2 stopped at step {step}: {reason}; {kept}, mean val F {best['mean_F']:.4f} "
+        f"({time.monotonic() - t0:.0f} s)")
     return best
 
 
@@ -375,7 +489,9 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
         "min_area_px": dict(MIN_AREA_PX),
         "data": ck["record"],
         "metrics": {"validation": best["val"], "tolerance_px": dict(TOL_PX), "best_step": best["step"],
-                    "stopped": ck.get("stopped", {})},
+                    "stopped": ck.get("stopped", {}),
+                    **({"phase2": {"best_ft_step": best.get("ft_step"), "stopped": ck.get("ft_stopped", {}),
+                                   "phase1_validation": ck["phase1_best"]["val"]}} if "phase1_best" in ck else {})},
         "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
                      "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx"},
         "licence": LICENCE,

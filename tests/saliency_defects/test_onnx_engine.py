@@ -47,7 +47,8 @@ def test_shipped_model_metadata_records_data_split_metrics_and_licence(model):
 
 # Golden figures: the shipped network on the fixtures (all from the 'eval' part of the split),
 # measured when the model was committed; a retrained model must land within the tolerance.
-GOLDEN = {"crack": 0.836, "corrosion": 0.794}  # half-resolution network of 2026-11-22 (v1 network: 0.737, 0.630)
+GOLDEN = {"crack": 0.841, "corrosion": 0.739}  # with the corrosion fine-tuning phase, 2026-11-22 19:00
+# (before it: 0.836, 0.794 on these three images; v1 network: 0.737, 0.630)
 GOLDEN_TOL = 0.03
 
 

@@ -94,3 +94,67 @@ def test_cli_train_onnx_without_the_three_sets_exits_2(tmp_path):
     assert r.exit_code == 2
     line = r.output.strip().splitlines()[-1]
     assert "vt_corrosion_cs" in line and "sd_saliency_900" in line and not (tmp_path / "m.onnx").exists()
+
+
+def _tiny_items(seed):
+    """A few 64 x 64 synthetic images per class: a bright square (corrosion, surface) or line (crack)."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c in od.CLASSES:
+        items = []
+        for i in range(3):
+            rgb = rng.integers(60, 120, (64, 64, 3), dtype=np.uint8)
+            gt = np.zeros((64, 64), bool)
+            if c == "crack":
+                gt[10 + 10 * i, 5:60] = True
+            else:
+                gt[16:40, 10 + 5 * i:34 + 5 * i] = True
+            rgb[gt] = (200, 90, 40)
+            it = ot._Item(c, f"{c}{i}", rgb, gt)
+            it.pos = np.argwhere(gt).astype(np.int32)
+            items.append(it)
+        out[c] = items
+    return out
+
+
+def test_finetune_is_reproducible_and_keeps_phase_one_unless_validation_improves(tmp_path):
+    # GIVEN a phase-1 checkpoint of an untrained network with a recorded validation figure
+    torch.manual_seed(0)
+    net = ot.build_net()
+    cfg = ot.OnnxTrainConfig(crop_px=32, per_class_batch=1, ft_steps=4, ft_crop_px=48, ft_corrosion_batch=2,
+                             ft_val_every=2)
+    train, val = _tiny_items(1), _tiny_items(2)
+    for high, tag in ((0.0, "low"), (2.0, "high")):  # a phase-1 figure below any F, and one above every F
+        best = {"step": 5, "val": {c: {"F": high, "threshold_u8": 128} for c in od.CLASSES}, "mean_F": high}
+        states = []
+        for run in range(2):
+            ck = tmp_path / f"{tag}{run}.pt"
+            torch.save({"state": net.state_dict(), "best": best, "record": {}, "config": dataclasses.asdict(cfg),
+                        "n_params": 1}, ck)
+            # WHEN phase 2 runs from it (twice, from equal copies)
+            got = ot.finetune(ck, cfg, items=(train, val), log=lambda s: None)
+            saved = torch.load(ck, weights_only=False)
+            states.append(saved["state"])
+            assert saved["phase1_best"] == best and saved["ft_stopped"]["step"] == 4
+        # THEN the two runs give the same network
+        for k in states[0]:
+            assert torch.equal(states[0][k], states[1][k]), k
+        same = all(torch.equal(states[0][k], net.state_dict()[k]) for k in states[0])
+        if tag == "low":  # any validation beats F = 0: the phase-2 network replaces phase 1's
+            assert got["mean_F"] > 0 and "ft_step" in got and not same
+        else:  # nothing beats F = 2: phase 1's network and record stay
+            assert got == best and same
+
+
+def test_finetune_only_refuses_a_checkpoint_of_other_phase_one_settings(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("train_onnx", Path(__file__).parents[2] / "tools" / "train_onnx.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    ck = tmp_path / "p1.pt"
+    other = dataclasses.asdict(ot.OnnxTrainConfig(lr=1e-2))
+    torch.save({"state": {}, "best": {}, "record": {}, "config": other, "n_params": 1}, ck)
+    with pytest.raises(SystemExit, match="lr"):
+        tool._finetune_only(ck, tmp_path / "p2.pt", ot.OnnxTrainConfig(), tmp_path)
