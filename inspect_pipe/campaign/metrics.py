@@ -294,7 +294,7 @@ class EpisodeMonitor:
         for st in self._link.values():
             if st["hover_t"] is not None:
                 r.link_hover_s.append(round(st["hover_t"] - st["t0"], 3))
-                r.link_drift_m.append(round(st["drift"], 3))
+                r.link_drift_m.append(round(st["drift"], 4))
                 r.link_brake_m.append(round(st["brake"], 3))
             if st["still_t"] is not None:
                 r.link_still_s.append(round(st["still_t"] - st["t0"], 3))
@@ -313,6 +313,13 @@ def _pct(xs: list[float], q: float) -> float | None:
 
 def _rnd(x: float | None, nd: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(x, nd)
+
+
+def _rnd_up(x: float | None) -> float | None:
+    """A largest value judged against a limit, to the millimetre (or ms) above: 0.10007 m of
+    overshoot is 0.101, not a 0.100 that meets a 0.10 goal (safety campaign, seed 1 e433).
+    (Rounded to 1e-6 first, so float noise on an exact value does not round it up.)"""
+    return None if x is None or not math.isfinite(x) else math.ceil(round(x, 6) * 1000.0) / 1000.0
 
 
 def aggregate(results: list[EpisodeResult]) -> dict:
@@ -339,7 +346,7 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "collisions": len(collisions),
         "min_clearance_p001_m": _rnd(_pct(clear, 0.001)),
         "min_clearance_median_m": _rnd(_pct(clear, 0.5)),
-        "overshoot_max_m": _rnd(max(over)) if over else None,
+        "overshoot_max_m": _rnd_up(max(over)) if over else None,
         "overshoot_p99_m": _rnd(_pct(over, 0.99)),
         "lateral_entry_max_m": _rnd(max(entries)) if entries else 0.0,
         "lateral_entry_episodes": len(entries),
@@ -351,10 +358,10 @@ def aggregate(results: list[EpisodeResult]) -> dict:
         "stale_block_s_max": _rnd(max(stale)) if stale else None,
         "stale_unblocked": sum(r.stale_unblocked for r in results),
         "link_loss_events": len(hover),
-        "link_loss_hover_s_max": _rnd(max(hover)) if hover else None,
+        "link_loss_hover_s_max": _rnd_up(max(hover)) if hover else None,
         "link_loss_hover_s_median": _rnd(_pct(hover, 0.5)),
         "link_loss_still_s_max": _rnd(max(still)) if still else None,
-        "link_loss_drift_m_max": _rnd(max(drift)) if drift else None,
+        "link_loss_drift_m_max": _rnd_up(max(drift)) if drift else None,
         "link_loss_brake_m_max": _rnd(max(brake)) if brake else None,
         "link_loss_brake_m_median": _rnd(_pct(brake, 0.5)),
         "altitude_excursion_m_max": _rnd(max(alt)) if alt else None,

@@ -153,3 +153,16 @@ def test_link_loss_hover_is_when_the_push_stops_being_obeyed_not_a_repulsion_acr
     # zero in every direction after 0.4 s (the stricter quantity)
     assert abs(r.link_hover_s[0] - 0.2) < 0.03
     assert abs(r.link_still_s[0] - 0.4) < 0.03
+
+
+def test_a_maximum_judged_against_a_goal_is_rounded_up_not_to_the_nearest():
+    from inspect_pipe.campaign.metrics import EpisodeResult, aggregate
+
+    # GIVEN one episode 0.10007 m past the stop line (seed 1 e433) and a link-loss hover of exactly 0.3 s
+    r = EpisodeResult(index=0, shield="ours", name="e", kind="push_yaw", subsets=["clean"], overshoot_m=0.10007)
+    r.link_hover_s.append(0.1 + 0.2)  # 0.30000000000000004
+    summary = aggregate([r])
+    # THEN the overshoot reported is 0.101 and its goal of 0.10 is not met; the exact 0.3 s stays 0.3
+    assert summary["overshoot_max_m"] == 0.101 and summary["link_loss_hover_s_max"] == 0.3
+    g = _goals({"ours": summary})
+    assert g["overshoot_max_m"]["met"] is False and g["link_loss_hover_s_max"]["met"] is True
