@@ -269,6 +269,15 @@ def validate(net, val: dict[str, list[_Item]]) -> dict[str, dict]:
 # ----------------------------------------------------------------------------- training
 
 
+def _optimise(opt, loss, loss_avg: float | None) -> float:
+    """One optimiser step on ``loss``; returns the running mean of the loss for the log."""
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    lv = loss.item()
+    return lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
+
+
 def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log: Callable[[str], None] = print) -> dict:
     """Train on ``root`` (a defects folder) and keep the best checkpoint at ``ckpt`` (.pt).
     Stops at max_steps, after ``patience`` validations without improvement, or at the time
@@ -305,13 +314,8 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
         for g in opt.param_groups:
             g["lr"] = lr_at(step)
         x, y, c = _batch(train_items, cfg, rng)
-        loss = _loss(net, x, y, c)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+        loss_avg = _optimise(opt, _loss(net, x, y, c), loss_avg)
         step += 1
-        lv = loss.item()
-        loss_avg = lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
         if step % 50 == 0:
             log(f"step {step} loss {loss_avg:.4f} lr {lr_at(step):.2e} ({time.monotonic() - t0:.0f} s)")
         over_time = time.monotonic() - t0 > cfg.time_budget_s
@@ -418,13 +422,8 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
         x2, y2, c2 = _batch(train_items, cfg, rng, classes=others)
         l1 = _loss(net, x1, y1, c1, cfg.ft_soft_f1)
         l2 = _loss(net, x2, y2, c2)
-        loss = (l1 * len(c1) + l2 * len(c2)) / (len(c1) + len(c2))
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+        loss_avg = _optimise(opt, (l1 * len(c1) + l2 * len(c2)) / (len(c1) + len(c2)), loss_avg)
         step += 1
-        lv = loss.item()
-        loss_avg = lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
         if step % 50 == 0:
             log(f"ft step {step} loss {loss_avg:.4f} ({time.monotonic() - t0:.0f} s)")
         over_time = time.monotonic() - t0 > budget
