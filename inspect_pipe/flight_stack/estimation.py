@@ -511,8 +511,7 @@ class MAVStateUpdater:
         ``alarm_leak_max_m_s2``: the leak bounds what an accelerometer bias the floor calibration
         missed can build up (a bias up to that limit settles at bias x leak time), and the cap
         keeps it from eating a real speed: leaking 3 s of a braking from 0.5 m/s, the estimate
-        reached zero with 0.08 m/s still true, and the vehicle, held "still", drifted beside a box
-        it then met (safety campaign, seed 5 e1805)."""
+        reached zero with 0.08 m/s still true (safety campaign, seed 5 e1805)."""
         p = self.p
         step = min(abs(v) * dt / p.alarm_speed_leak_s, p.alarm_leak_max_m_s2 * dt)
         return v - math.copysign(step, v)
@@ -520,9 +519,8 @@ class MAVStateUpdater:
     def _carry(self, ax: float, ay: float, dt: float) -> tuple[float, float]:
         """The carried horizontal speed (heading frame) one tick on: turned by the heading's change
         since the last tick (a speed fixed in the hold turns the other way in a turning frame),
-        plus the IMU's acceleration (bias removed). Without the turn, a vehicle braking while the
-        operator yawed it at 0.27 rad/s in mode -2 kept 0.08 m/s it did not know of and drifted
-        into a box (safety campaign, seed 5 e1805)."""
+        plus the IMU's acceleration (bias removed): the operator may keep yawing in the alarm
+        modes (safety campaign, seed 5 e1805: 0.27 rad/s while braking in mode -2)."""
         vx, vy = self._dr_v
         yaw, prev = self._yaw, self._carry_yaw
         self._carry_yaw = yaw
