@@ -17,16 +17,30 @@ import dataclasses
 from pathlib import Path
 
 
+def _checkpoint(path: Path) -> dict:
+    """A training checkpoint (.pt written by ``train``), or a one-line error naming the file."""
+    import torch
+
+    if not path.is_file():
+        raise SystemExit(f"error: {path}: no such checkpoint (a .pt written by training; see --ckpt)")
+    try:
+        ck = torch.load(path, weights_only=False)
+    except Exception as e:  # truncated, not a torch file, ...
+        raise SystemExit(f"error: {path}: not a readable checkpoint ({type(e).__name__}); train again or pick another --ckpt")
+    missing = [k for k in ("state", "config", "best") if not isinstance(ck, dict) or k not in ck]
+    if missing:
+        raise SystemExit(f"error: {path}: not a training checkpoint (missing {', '.join(missing)})")
+    return ck
+
+
 def _finetune_only(src: Path, ckpt: Path, cfg, data: Path) -> None:
     """Phase 2 from a phase-1 checkpoint written with the same phase-1 settings (so that the
     result equals a whole run of ``train``); a different phase-1 configuration is an error."""
     import shutil
 
-    import torch
-
     from inspect_pipe.saliency_defects._onnx_train import finetune
 
-    ck = torch.load(src, weights_only=False)
+    ck = _checkpoint(src)
     if "phase1_best" in ck:
         raise SystemExit(f"error: {src} already holds a phase-2 model")
     # phase-1 settings: the fields the checkpoint records, less phase 2's own
@@ -68,6 +82,7 @@ def main(argv=None) -> None:
             _finetune_only(a.finetune_from, ckpt, cfg, a.data)
         else:
             train(a.data, ckpt, cfg, log=lambda s: print(s, flush=True))
+    _checkpoint(ckpt)  # --export-only of a missing or damaged file: one line, not a traceback
     export_onnx(ckpt, a.out, log=lambda s: print(s, flush=True))
 
 

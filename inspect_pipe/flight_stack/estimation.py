@@ -621,8 +621,10 @@ class MAVStateUpdater:
 class StuckCheck:
     """A sensor that repeats its last value bit for bit (a hung driver or bus re-sending the last
     frame, freshly stamped) while another sensor says the value has changed is stuck: after
-    ``samples`` equal readings, once the integral of ``rates`` since the repeats began (flow: the
-    IMU's acceleration; range: the speed along the sensor's axis) exceeds ``change_limit``. A
+    ``samples`` equal readings, once the value when the repeats began (``reference``, else the
+    reading itself) plus the integral of ``rates`` since (flow: the IMU's acceleration; range: the
+    speed along the sensor's axis) differs from the repeated reading by more than
+    ``change_limit``. A
     repeat alone is not enough: a quantised output (PX4Flow's integer pixel flow, a 1 mm sonar)
     repeats in steady flight. Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made the
     station keeping accelerate the vehicle to 2 m/s into a wall; a front flow stuck at +0.03 m/s

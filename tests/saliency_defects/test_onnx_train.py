@@ -146,15 +146,38 @@ def test_finetune_is_reproducible_and_keeps_phase_one_unless_validation_improves
             assert got == best and same
 
 
-def test_finetune_only_refuses_a_checkpoint_of_other_phase_one_settings(tmp_path):
+def _tool():
     import importlib.util
     from pathlib import Path
 
     spec = importlib.util.spec_from_file_location("train_onnx", Path(__file__).parents[2] / "tools" / "train_onnx.py")
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
+    return tool
+
+
+def test_finetune_only_refuses_a_checkpoint_of_other_phase_one_settings(tmp_path):
+    tool = _tool()
     ck = tmp_path / "p1.pt"
     other = dataclasses.asdict(ot.OnnxTrainConfig(lr=1e-2))
     torch.save({"state": {}, "best": {}, "record": {}, "config": other, "n_params": 1}, ck)
     with pytest.raises(SystemExit, match="lr"):
         tool._finetune_only(ck, tmp_path / "p2.pt", ot.OnnxTrainConfig(), tmp_path)
+
+
+def test_a_missing_or_damaged_checkpoint_is_one_line_not_a_traceback(tmp_path):
+    tool = _tool()
+    out = str(tmp_path / "m.onnx")
+    # GIVEN --export-only of a checkpoint that is not there THEN one line naming it
+    with pytest.raises(SystemExit, match="no such checkpoint") as e:
+        tool.main([str(tmp_path), "-o", out, "--export-only", "--ckpt", str(tmp_path / "none.pt")])
+    assert "none.pt" in str(e.value) and "\n" not in str(e.value)
+    # AND a truncated file, or a torch file that is not a checkpoint, the same
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(SystemExit, match="not a readable checkpoint"):
+        tool.main([str(tmp_path), "-o", out, "--export-only", "--ckpt", str(bad)])
+    other = tmp_path / "other.pt"
+    torch.save({"weights": 1}, other)
+    with pytest.raises(SystemExit, match="not a training checkpoint"):
+        tool.main([str(tmp_path), "-o", out, "--finetune-from", str(other), "--ckpt", str(tmp_path / "p2.pt")])
