@@ -223,6 +223,7 @@ class MAVStateUpdater:
         self._dr_v = (0.0, 0.0)  # horizontal speed carried through the alarm modes (IMU)
         self._carry_yaw: float | None = None  # the heading the carried speed is expressed in
         self._dr_vz = 0.0  # vertical speed carried through the alarm modes (IMU)
+        self._alarm_since: float | None = None  # when the current alarm mode began
         self.memory = ObstacleMemory(
             keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg
         )
@@ -351,8 +352,17 @@ class MAVStateUpdater:
             source, latency = m.bottom_sonar, p.sonar_latency_s
         elif status.bottom_tof:
             source, latency = m.bottom_tof, p.tof_latency_s
+        # "+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
+        # a brief loss of every range sensor is not yet a lost reference. Descending at once, a
+        # vehicle that came to rest blind beside a box edge brought its rotors onto that edge
+        # within the 2.9 s the sensors were silent (safety campaign, seed 5 e1805).
+        if mode < 0:
+            self._alarm_since = now if self._alarm_since is None else self._alarm_since
+        else:
+            self._alarm_since = None
+        climb = p.alarm_climb_m_s if mode < 0 and now - self._alarm_since >= p.alarm_descent_delay_s else 0.0
         if source is None and vz_flow is None:
-            self.height.propagate(now, rate=p.alarm_climb_m_s)
+            self.height.propagate(now, rate=climb)
         else:
             self.height.propagate(now, az, vz_flow)
         if source is not None and source.stamp_s != self._last_height_stamp:
@@ -365,12 +375,15 @@ class MAVStateUpdater:
         # The val is added to the last vertical speed carried on with the IMU instead, so the
         # loop settles at a steady descent of val. Mode -1 still has the TeraRanger's rate.
         if mode == EstimationMode.ALARM_TOF:
-            vz = self.height.rate_m_s + p.alarm_climb_m_s  # the TeraRanger still measures it
+            vz = self.height.rate_m_s + climb  # the TeraRanger still measures it
             self._dr_vz = self.height.rate_m_s
         elif mode < 0:
-            k = max(0.0, 1.0 - dt / p.alarm_speed_leak_s)
-            self._dr_vz = (self._dr_vz + (az - self.imu_bias[2]) * dt) * k
-            vz = self._dr_vz + p.alarm_climb_m_s
+            # The leak is capped much lower than the horizontal one: the loop holds this speed at
+            # -val, so whatever the leak removes the vehicle gains as a real acceleration. Leaking
+            # over 3 s uncapped, an alarm descent sped up by val / 3 s each second (0.25 ->
+            # 0.35 m/s within 2 s onto a box edge: safety campaign, seed 5 e1805).
+            self._dr_vz = self._leak(self._dr_vz + (az - self.imu_bias[2]) * dt, dt, p.alarm_vz_leak_max_m_s2)
+            vz = self._dr_vz + climb
         else:
             vz = vz_flow if vz_flow is not None else self.height.rate_m_s
             self._dr_vz = vz
@@ -506,14 +519,16 @@ class MAVStateUpdater:
             follow(vy, [innovation("left", -1.0, 1), innovation("right", 1.0, 1)]),
         )
 
-    def _leak(self, v: float, dt: float) -> float:
+    def _leak(self, v: float, dt: float, max_m_s2: float | None = None) -> float:
         """One tick of the carried speed's leak towards zero (``alarm_speed_leak_s``), at most
         ``alarm_leak_max_m_s2``: the leak bounds what an accelerometer bias the floor calibration
         missed can build up (a bias up to that limit settles at bias x leak time), and the cap
         keeps it from eating a real speed: leaking 3 s of a braking from 0.5 m/s, the estimate
-        reached zero with 0.08 m/s still true (safety campaign, seed 5 e1805)."""
+        reached zero with 0.08 m/s still true (safety campaign, seed 5 e1805). ``max_m_s2``: another
+        cap (the vertical speed's, ``alarm_vz_leak_max_m_s2``)."""
         p = self.p
-        step = min(abs(v) * dt / p.alarm_speed_leak_s, p.alarm_leak_max_m_s2 * dt)
+        cap = p.alarm_leak_max_m_s2 if max_m_s2 is None else max_m_s2
+        step = min(abs(v) * dt / p.alarm_speed_leak_s, cap * dt)
         return v - math.copysign(step, v)
 
     def _carry(self, ax: float, ay: float, dt: float) -> tuple[float, float]:

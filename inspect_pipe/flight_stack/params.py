@@ -45,11 +45,17 @@ class EstimationParams:
         2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
     )
     alarm_climb_m_s: float = param(0.2, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes: the steady alarm descent speed")
+    alarm_descent_delay_s: float = param(
+        1.0, 0.0, 10.0, "s", "alarm modes: '+val.' is filled in (the descent begins) once the alarm mode has lasted this long"
+    )
     alarm_speed_leak_s: float = param(
         3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
     )
     alarm_leak_max_m_s2: float = param(
         0.04, 0.0, 1.0, "m/s^2", "alarm modes: the horizontal speed's leak removes at most this much per second"
+    )
+    alarm_vz_leak_max_m_s2: float = param(
+        0.01, 0.0, 1.0, "m/s^2", "alarm modes: the carried vertical speed's leak (alarm_speed_leak_s) removes at most this much per second"
     )
     alarm_carry_tau_s: float = param(
         0.3, 0.0, 5.0, "s", "outside the alarm modes, the speed they would carry on is the measured one blended with the IMU at this time constant"

@@ -78,10 +78,25 @@ def test_mode2_longitudinal_speed_is_the_front_range_derivative():
 
 @pytest.mark.parametrize("bottom_tof", [True, False])
 def test_alarm_modes_fill_a_climb_and_zero_horizontal_speed(bottom_tof):
-    est, _ = MAVStateUpdater().update(1.0, _meas(1.0, bottom=False, front=False, tof=bottom_tof))
+    # GIVEN a vehicle at rest whose bottom PX4Flow and front sensors are lost (IMU: no motion)
+    upd = MAVStateUpdater()
+    delay = upd.p.alarm_descent_delay_s
+    est, _ = upd.update(1.0, _meas(1.0, bottom=False, front=False, tof=bottom_tof))
     assert est.mode == (EstimationMode.ALARM_TOF if bottom_tof else EstimationMode.ALARM_NONE)
     assert est.vx_m_s == est.vy_m_s == 0.0
-    assert est.vz_m_s > 0.0  # the vertical controller answers with a descent
+    # THEN for alarm_descent_delay_s it reports what it knows (no vertical motion: a brief loss
+    # is not yet a lost reference) ...
+    t = 1.0
+    while t < 1.0 + delay - 0.15:
+        t += 0.1
+        est, _ = upd.update(t, _meas(t, bottom=False, front=False, tof=bottom_tof))
+        assert est.vz_m_s == pytest.approx(0.0, abs=1e-6)
+    # ... and then the Table I "+val.", which the vertical controller answers with a descent
+    for _ in range(3):
+        t += 0.1
+        est, _ = upd.update(t, _meas(t, bottom=False, front=False, tof=bottom_tof))
+    assert est.mode < 0
+    assert est.vz_m_s == pytest.approx(upd.p.alarm_climb_m_s, abs=0.02)
 
 
 def test_height_estimator_tells_a_floor_step_from_vertical_motion():
