@@ -137,11 +137,11 @@ def run(data: Path) -> str:
         steps_t = {s.name: s.seconds for s in o.steps if s.action == "ran"}
         run2 = tmp / "run200b"
         reg = read_register(run2 / "report" / "defects.json")
-        det = compare_with_truth(reg, wall.truth)
+        det = compare_with_truth(reg, wall.truth, wall=wall)
         engine = json.loads((run2 / "detect" / "defects.json").read_text())["model"]["engine"]
         tr_dir = _truth_run(run2, wall, sweep)
         rep_t = report_from_run(RunStore(tr_dir), tr_dir / "report", ReportParams(pdf=False))
-        geo = compare_with_truth(rep_t.defects, wall.truth)
+        geo = compare_with_truth(rep_t.defects, wall.truth, wall=wall)
         mdoc = json.loads((run2 / "mosaic" / "mosaic.json").read_text())
         rep = report_from_run(RunStore(run2), tmp / "rep_cov", ReportParams(pdf=False))
         placed = {v.index for v in rep.views}
@@ -213,8 +213,10 @@ def run(data: Path) -> str:
           + ("; it over-grows rust borders, and its cracks were learned on asphalt" if engine == "saliency" else "")
           + "). This machine's "
           "2 cores are shared with other benchmarks, so timings and the Dask speed-up are upper and lower bounds. "
-          "Known defects only partly in view are compared with their whole true outline, which inflates the "
-          "worst centroid and area errors.\n")
+          "A register entry counts for a known defect when its centroid lies within 15 cm of that defect's true "
+          "mask (the entries of one defect are its pieces: their areas add up; `compare_with_truth`); a known "
+          "defect only partly in view is compared with its whole true outline, which inflates the worst centroid "
+          "and area errors.\n")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out.getvalue()

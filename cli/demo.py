@@ -66,13 +66,14 @@ def demo(
         prog.close()
     print_outcome(o)
     defects = read_register(out / "report" / "defects.json")
-    cmp = compare_with_truth(defects, truth)
+    cmp = compare_with_truth(defects, truth, wall=wall)
     (out / "truth_comparison.json").write_text(json.dumps(cmp, indent=1))
     typer.echo(f"found vs truth ({engine.value} engine): {cmp['matched']}/{cmp['truth']} known defects found, "
                f"{cmp['false_alarms']} other entries")
     for r in cmp["rows"]:
         if r["found"]:
-            typer.echo(f"  {r['truth']} {r['class']:9s} -> {r['found']}: centroid off {100 * r['centroid_error_m']:.1f} cm, area {r['area_true_m2'] * 1e4:.0f} -> {r['area_found_m2'] * 1e4:.0f} cm2 ({100 * r['area_error']:+.0f} %)")
+            more = f" (+{len(r['pieces']) - 1} pieces)" if len(r["pieces"]) > 1 else ""
+            typer.echo(f"  {r['truth']} {r['class']:9s} -> {r['found']}{more}: centroid off {100 * r['centroid_error_m']:.1f} cm, area {r['area_true_m2'] * 1e4:.0f} -> {r['area_found_m2'] * 1e4:.0f} cm2 ({100 * r['area_error']:+.0f} %)")
         else:
             typer.echo(f"  {r['truth']} {r['class']:9s} -> not found")
     rep = out / "report" / ("report.pdf" if (out / "report" / "report.pdf").exists() else "report.html")

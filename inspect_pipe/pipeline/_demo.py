@@ -199,30 +199,81 @@ DEMO_SURVEY = {"vessel": "MV Demo Carrier (simulated)", "hold": "No. 3", "wall":
                "member": "plating", "frame_spacing_m": 0.8, "reference_frame": 112}
 
 
-def compare_with_truth(defects, truth, *, match_m: float = 0.15) -> dict:
-    """Match register entries (not rejected) to true defects of the same class: the closest
-    centroid inside the true defect's box grown by ``match_m``. Centroid error (m), area error
-    (relative; cracks: area of the register entry vs the true mask), recall and false alarms."""
-    used, rows = set(), []
-    found = [d for d in defects if d.status != "rejected" and d.redetected]
+def _grown_masks(wall: DemoWall, truth, match_m: float) -> list[np.ndarray]:
+    """Each true defect's mask on the wall (label N of the labels image for the defect "TNN"),
+    grown by ``match_m``."""
+    labels = cv2.imread(str(wall.labels), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        raise InputError(str(wall.labels), "unreadable", "rebuild the demo wall with --force")
+    r = match_m / wall.m_per_px
+    out = []
     for t in truth:
+        dist = cv2.distanceTransform((labels != int(t.id.lstrip("T"))).astype(np.uint8), cv2.DIST_L2, 5)
+        out.append(dist <= r)
+    return out
+
+
+def compare_with_truth(defects, truth, *, match_m: float = 0.15, wall: DemoWall | None = None) -> dict:
+    """Match register entries (not rejected) to true defects of the same class.
+
+    An entry is near a true defect when its centroid lies within ``match_m`` of the defect's
+    mask (with ``wall``: its labels image) or else inside its box grown by ``match_m``. Each true
+    defect first takes the closest entry near it; then every other entry near one or more of
+    them joins the one whose centroid is closest, as a piece of it (a large patch is often
+    registered as several regions: its area is their sum, its place their area-weighted
+    centroid). Per defect: the pieces, the centroid error (m) and the relative area error
+    (cracks: register area vs the true mask's); entries that are no piece of a defect are
+    counted as other entries."""
+    found = [d for d in defects if d.status != "rejected" and d.redetected]
+    masks = _grown_masks(wall, truth, match_m) if wall is not None else None
+
+    def inside(d, k: int) -> bool:
+        t = truth[k]
+        if d.cls != t.cls:
+            return False
+        u, v = d.centroid_wall_m
+        if masks is not None:
+            m = masks[k]
+            x = int(math.floor((u - wall.origin_uv[0]) / wall.m_per_px))  # type: ignore[union-attr]
+            y = int(math.floor((wall.origin_uv[1] - v) / wall.m_per_px))  # type: ignore[union-attr]
+            return 0 <= y < m.shape[0] and 0 <= x < m.shape[1] and bool(m[y, x])
         u0, v0, u1, v1 = t.bbox_wall_m
+        return u0 - match_m <= u <= u1 + match_m and v0 - match_m <= v <= v1 + match_m
+
+    used: set[int] = set()
+    pieces: dict[int, list[int]] = {}
+    for k, t in enumerate(truth):
         cands = [(math.dist(d.centroid_wall_m, t.centroid_wall_m), i) for i, d in enumerate(found)
-                 if i not in used and d.cls == t.cls and u0 - match_m <= d.centroid_wall_m[0] <= u1 + match_m
-                 and v0 - match_m <= d.centroid_wall_m[1] <= v1 + match_m]
-        if not cands:
+                 if i not in used and inside(d, k)]
+        if cands:
+            i = min(cands)[1]
+            used.add(i)
+            pieces[k] = [i]
+    for i, d in enumerate(found):
+        if i in used:
+            continue
+        near = [(math.dist(d.centroid_wall_m, truth[k].centroid_wall_m), k) for k in pieces if inside(d, k)]
+        if near:
+            pieces[min(near)[1]].append(i)
+            used.add(i)
+    rows = []
+    for k, t in enumerate(truth):
+        if k not in pieces:
             rows.append({"truth": t.id, "class": t.cls, "found": None})
             continue
-        dist, i = min(cands)
-        used.add(i)
-        d = found[i]
-        rows.append({"truth": t.id, "class": t.cls, "found": d.id, "centroid_error_m": round(dist, 4),
-                     "area_true_m2": round(t.area_m2, 5), "area_found_m2": round(d.area_m2, 5),
-                     "area_error": round((d.area_m2 - t.area_m2) / t.area_m2, 4)})
+        ds = [found[i] for i in pieces[k]]
+        area = sum(d.area_m2 for d in ds)
+        w = [max(d.area_m2, 1e-12) for d in ds]
+        cu = float(np.average([d.centroid_wall_m[0] for d in ds], weights=w))
+        cv = float(np.average([d.centroid_wall_m[1] for d in ds], weights=w))
+        rows.append({"truth": t.id, "class": t.cls, "found": ds[0].id, "pieces": [d.id for d in ds],
+                     "centroid_error_m": round(math.dist((cu, cv), t.centroid_wall_m), 4),
+                     "area_true_m2": round(t.area_m2, 5), "area_found_m2": round(area, 5),
+                     "area_error": round((area - t.area_m2) / t.area_m2, 4)})
     matched = [r for r in rows if r["found"]]
     return {
         "truth": len(truth), "found": len(found), "matched": len(matched),
-        "false_alarms": len(found) - len(matched),
+        "false_alarms": len(found) - len(used),
         "median_centroid_error_m": float(np.median([r["centroid_error_m"] for r in matched])) if matched else None,
         "median_abs_area_error": float(np.median([abs(r["area_error"]) for r in matched])) if matched else None,
         "rows": rows,
