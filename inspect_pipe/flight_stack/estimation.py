@@ -356,11 +356,12 @@ class MAVStateUpdater:
         # a brief loss of every range sensor is not yet a lost reference. Descending at once, a
         # vehicle that came to rest blind beside a box edge brought its rotors onto that edge
         # within the 2.9 s the sensors were silent (safety campaign, seed 5 e1805).
-        if mode < 0:
-            self._alarm_since = now if self._alarm_since is None else self._alarm_since
-        else:
+        if mode >= 0:
             self._alarm_since = None
-        climb = p.alarm_climb_m_s if mode < 0 and now - self._alarm_since >= p.alarm_descent_delay_s else 0.0
+        elif self._alarm_since is None:
+            self._alarm_since = now
+        alarm_s = 0.0 if self._alarm_since is None else now - self._alarm_since
+        climb = p.alarm_climb_m_s if mode < 0 and alarm_s >= p.alarm_descent_delay_s else 0.0
         if source is None and vz_flow is None:
             self.height.propagate(now, rate=climb)
         else:

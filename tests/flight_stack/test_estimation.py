@@ -99,6 +99,25 @@ def test_alarm_modes_fill_a_climb_and_zero_horizontal_speed(bottom_tof):
     assert est.vz_m_s == pytest.approx(upd.p.alarm_climb_m_s, abs=0.02)
 
 
+def test_alarm_mode_keeps_a_steady_descent_it_carries_on():
+    # GIVEN a vehicle descending at 0.2 m/s (front flow) when every sensor but the IMU is lost,
+    # and the IMU then measures no acceleration (the descent goes on unchanged) for 5 s
+    upd = MAVStateUpdater()
+    t = 0.0
+    for _ in range(10):
+        t += 0.1
+        upd.update(t, _meas(t, bottom=False, vz=-0.2))
+    for _ in range(50):
+        t += 0.1
+        est, _ = upd.update(t, _meas(t, bottom=False, tof=False, front=False))
+    # THEN the carried vertical speed lost at most alarm_vz_leak_max_m_s2 per second (a leak
+    # towards zero over 3 s would have taken 0.16 m/s of it, and the speed loop would have made
+    # that up as a faster and faster descent)
+    assert est.mode == EstimationMode.ALARM_NONE
+    carried = est.vz_m_s - upd.p.alarm_climb_m_s
+    assert carried == pytest.approx(-0.2 + 5.0 * upd.p.alarm_vz_leak_max_m_s2, abs=0.01)
+
+
 def test_height_estimator_tells_a_floor_step_from_vertical_motion():
     # GIVEN 10 Hz sonar samples at a constant 1.5 m altitude, over a 1 m box from t=2 s to t=4 s
     rng = random.Random(1)
