@@ -49,7 +49,7 @@ class EstimationParams:
         1.0, 0.0, 10.0, "s", "alarm modes: '+val.' is filled in (the descent begins) once the alarm mode has lasted this long"
     )
     alarm_speed_leak_s: float = param(
-        3.0, 0.1, 60.0, "s", "alarm modes: IMU-propagated horizontal speed leaks to zero at this time constant"
+        3.0, 0.1, 60.0, "s", "alarm modes: the IMU-propagated speeds leak to zero at this time constant (each capped: alarm_leak_max_m_s2, alarm_vz_leak_max_m_s2)"
     )
     alarm_leak_max_m_s2: float = param(
         0.04, 0.0, 1.0, "m/s^2", "alarm modes: the horizontal speed's leak removes at most this much per second"

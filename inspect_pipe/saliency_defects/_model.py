@@ -348,6 +348,20 @@ def save_model(model: DefectModel, path: Path) -> None:
         np.savez_compressed(fh, **arrays)
 
 
+def _check_tree(t: FeatureTable, tables, where: str) -> None:
+    """A tree table read from a file must be whole: its split and threshold arrays of one heap
+    size (2^d - 1, d <= 8), splits naming its inputs, and every input a single table read before
+    it (else the damage would surface as an exception in the middle of a detection)."""
+    if not t.tree_inputs:
+        return
+    split, thr = t.tree_split, t.tree_thr
+    ok = split is not None and thr is not None and split.ndim == 1 and split.shape == thr.shape
+    ok = ok and split.size + 1 in (2, 4, 8, 16, 32, 64, 128, 256) and int(split.max(initial=-1)) < len(t.tree_inputs)
+    before = {u.name for u in tables[: tables.index(t)] if not u.pair and not u.tree_inputs}
+    if not ok or not set(t.tree_inputs) <= before:
+        raise ValueError(f"damaged model file: the tree table of {where} is incomplete")
+
+
 def load_model(path: Path) -> DefectModel:
     """Read a model written by :func:`save_model`. Raises ValueError on a wrong or damaged file."""
     try:
@@ -372,6 +386,8 @@ def load_model(path: Path) -> DefectModel:
                              arrays.get(f"{cname}/{k}/{f['name']}:split"), arrays.get(f"{cname}/{k}/{f['name']}:thr"))
                 for f in s["features"]
             )
+            for t in tables:
+                _check_tree(t, tables, f"{cname} stage {k}")
             stages.append(Stage(tables, np.asarray(s["weights"], np.float32), float(s["bias"]), float(s["log_prior_odds"])))
         classes[cname] = ClassModel(
             name=cname,

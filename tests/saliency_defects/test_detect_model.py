@@ -37,6 +37,19 @@ def test_load_model_rejects_other_files(tmp_path):
         load_model(junk)
 
 
+def test_load_model_rejects_a_tree_table_without_its_splits(tmp_path):
+    # GIVEN the shipped model with one tree table's split array removed from the file
+    with np.load(default_model_path(), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    split = [k for k in arrays if k.endswith(":split")]
+    assert split, "the shipped model has a tree table"
+    del arrays[split[0]]
+    np.savez(tmp_path / "m.npz", **arrays)
+    # THEN loading it is an error naming the damage, not a crash in a later detection
+    with pytest.raises(ValueError, match="tree table .* incomplete"):
+        load_model(tmp_path / "m.npz")
+
+
 def test_training_learns_synthetic_rust_and_round_trips(tmp_path):
     # GIVEN six synthetic rusty walls for training and a seventh, unseen one
     rng = np.random.default_rng(1)
