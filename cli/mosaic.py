@@ -29,7 +29,11 @@ Examples:
   inspect-pipe mosaic out/demo/sweep -o out/demo/mosaic   # a sweep: metric, placed on the wall
 
 Exit 0 on success; 2 on bad input (empty folder, unreadable or truncated images, images of
-different sizes, no overlap), after writing whatever could be mosaicked.
+different sizes, no overlap), after writing whatever could be mosaicked. A sweep is read as
+`run` reads it: a last frames.jsonl line cut by a crash, a COMPLETE marker that lists more frames
+than the disk holds, and frames that cannot be read (or, with --verify, whose sha256 differs
+from COMPLETE's) give one warning line; those frames are listed as unplaced with the reason in
+mosaic.json and the exit is 0 as long as some frames were placed.
 """
 
 
@@ -56,6 +60,7 @@ def mosaic(
     focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known: rectifies the mosaic to the wall plane."),
     seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line."),
+    verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
 ) -> None:
     if detector not in DETECTORS:
         raise fail(f"--detector {detector!r}: unknown; choose one of {', '.join(DETECTORS)}")
@@ -65,8 +70,10 @@ def mosaic(
     progress = _Progress(not quiet)
     t0 = time.monotonic()
     if is_sweep(input):  # camera model and vehicle states come with it
-        result = run_mosaic_sweep(input, out, params=params, progress=progress)
+        result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify)
     else:
+        if verify:
+            raise fail(f"{input}: --verify needs a sweep directory (its COMPLETE marker holds the checksums)")
         result = run_mosaic(FolderSource(input), out, params=params, progress=progress)
     progress.close()
     n = result.n_input
@@ -75,5 +82,8 @@ def mosaic(
         f"{out / 'mosaic.json'}: {result.n_placed}/{n} frames placed in {len(result.images)} mosaic(s), "
         f"{unplaced} unplaced, {time.monotonic() - t0:.1f} s"
     )
+    if result.warnings:
+        more = f" (and {len(result.warnings) - 1} more, listed in mosaic.json)" if len(result.warnings) > 1 else ""
+        typer.echo(f"warning: {result.warnings[0]}{more}", err=True)
     if result.problems:
         raise fail(result.problems[0])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -10,6 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from cli._common import one_line_errors
+from inspect_pipe._files import write_json
 from cli.detect import DEFAULT, ENGINE_HELP, Engine
 from inspect_pipe.errors import InputError
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE
@@ -20,6 +20,13 @@ mosaic -> detect -> report.
 One INPUT: OUT is its run directory (OUT/mosaic, OUT/detect, OUT/report/report.html ...).
 Several: OUT/<input name>/ each, run in parallel on Dask (a local cluster of --workers
 processes, or --scheduler tcp://HOST:8786); --workers 1 runs them one after the other without Dask.
+
+A sweep cut by a crash (its last frames.jsonl line partial, its COMPLETE marker listing more
+frames than the disk holds) is mosaicked from its whole frames; frames that cannot be read are
+listed as unplaced with the reason in mosaic.json and the report. --verify also checks every
+file against the sha256 in COMPLETE. With several sweeps, one that fails does not stop the
+others: each failure is printed with its reason and recorded in OUT/runs.json, and the command
+exits 2 after the others have finished.
 
 Finished steps are skipped (their output exists and their options are unchanged); --force redoes
 everything, --rerun-from STEP redoes STEP and what follows. A surveyor's statuses in
@@ -73,7 +80,7 @@ class RichProgress:
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
                  m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
-                 engine: str = DEFAULT_ENGINE):
+                 engine: str = DEFAULT_ENGINE, verify: bool = False):
     from inspect_pipe.pipeline import DetectConfig, RunConfig
     from inspect_pipe.report import SCHEMES
 
@@ -86,7 +93,7 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
     if m_per_px:
         report["m_per_px"] = m_per_px
     return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine),
-                     report=report, report_out=str(report_out) if report_out else None)
+                     report=report, report_out=str(report_out) if report_out else None, verify=verify)
 
 
 def check_engine(dc) -> None:
@@ -125,6 +132,7 @@ def run(
     focal_px: Annotated[Optional[float], typer.Option("--focal-px", help="Folder input: focal length in pixels.")] = None,
     no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
     engine: Annotated[Engine, typer.Option("--engine", help="Detect step: " + ENGINE_HELP)] = DEFAULT,
+    verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
 ) -> None:
     from inspect_pipe.pipeline import STEP_NAMES, input_kind, run_many, run_pipeline
 
@@ -133,7 +141,7 @@ def run(
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
-                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value) for s in inputs]
+                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify) for s in inputs]
     check_engine(cfgs[0].detect)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
@@ -147,7 +155,8 @@ def run(
     if len(set(names)) != len(names):
         raise InputError(inputs[0], "two inputs have the same name", "their run directories would collide")
     jobs = [(out / n, c) for n, c in zip(names, cfgs)]
-    failed = []
+    failed: list[str] = []
+    errors: dict[str, str] = {}
     bar = None
     if sys.stderr.isatty():
         from rich.progress import Progress
@@ -161,6 +170,7 @@ def run(
             bar.advance(task)
         if o.error:
             failed.append(o.error)
+            errors[str(o.run_dir)] = o.error
             typer.echo(f"{o.run_dir}: error: {o.error}", err=True)
         else:
             print_outcome(o)
@@ -170,7 +180,9 @@ def run(
     finally:
         if bar:
             bar.stop()
-    summary = [{"run": str(d), "input": c.input} for d, c in jobs]
-    (out / "runs.json").write_text(json.dumps({"format": "inspect_pipe.runs/1", "runs": summary}, indent=1))
+    summary = [{"run": str(d), "input": c.input, "status": "failed" if str(d) in errors else "done", "error": errors.get(str(d))}
+               for d, c in jobs]
+    write_json(out / "runs.json", {"format": "inspect_pipe.runs/1", "runs": summary})
     if failed:
-        raise InputError(failed[0].split(":")[0], f"{len(failed)} of {len(jobs)} sweeps failed; first: {failed[0]}")
+        names = ", ".join(Path(r["run"]).name for r in summary if r["error"])
+        raise InputError(str(out / "runs.json"), f"{len(failed)} of {len(jobs)} sweeps failed ({names}); the others finished; first: {failed[0]}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,32 @@ import cv2
 import numpy as np
 
 
+_UMASK: int | None = None
+_UMASK_LOCK = threading.Lock()
+
+
+def current_umask() -> int:
+    """The process's umask, read without leaving it changed for a moment where the kernel tells it
+    (``/proc/self/status``, Linux >= 4.7); elsewhere set and restored once under a lock, then kept."""
+    global _UMASK
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _UMASK_LOCK:
+        if _UMASK is None:
+            _UMASK = os.umask(0o022)
+            os.umask(_UMASK)
+        return _UMASK
+
+
 def atomic_write(path: Path, data: bytes, *, fsync: bool = True) -> None:
-    """Write ``data`` to ``path`` atomically; ``fsync`` also survives power loss (slower)."""
+    """Write ``data`` to ``path`` atomically; ``fsync`` also survives power loss (slower).
+
+    The file gets the mode ``open()`` would give a new file (0o666 less the umask: 0644 by
+    default), not mkstemp's private 0600, so a colleague or a web server can read the report."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -22,6 +47,7 @@ def atomic_write(path: Path, data: bytes, *, fsync: bool = True) -> None:
         view = memoryview(data)
         while view:
             view = view[os.write(fd, view):]
+        os.fchmod(fd, 0o666 & ~current_umask())
         if fsync:
             os.fsync(fd)
         os.close(fd)

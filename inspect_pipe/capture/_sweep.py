@@ -172,6 +172,7 @@ class Sweep:
     complete: bool  # the COMPLETE marker is present
     summary: dict[str, Any] | None  # from COMPLETE: stop reason, drops, clock fit
     problems: tuple[InputError, ...] = ()  # what was skipped; the frames listed are all readable
+    corrupt: dict[int, str] = field(default_factory=dict)  # position in ``frames`` -> why its image fails the check (read_sweep(verify=True))
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -299,13 +300,19 @@ def _record(sweep_dir: Path, d: dict) -> FrameRecord | str:
     )
 
 
-def read_sweep(path: str | Path, *, strict: bool = False) -> Sweep:
+def read_sweep(path: str | Path, *, strict: bool = False, verify: bool = False) -> Sweep:
     """Read a sweep directory.
 
     Raises :class:`InputError` when it is not a sweep at all (no ``sweep.json``, bad JSON, an
     unknown format version, no ``frames.jsonl``). Otherwise returns every whole, consistent frame;
     a partial last line (an interrupted capture), a bad line or a frame whose image is missing is
     skipped and described in ``Sweep.problems`` (``strict=True`` raises the first instead).
+
+    ``complete`` is True only when the COMPLETE marker is there and agrees with the disk: the
+    number of frames it lists is the number read (a sweep copied in part is not complete).
+    ``verify=True`` also checks every file's sha256 against the marker: a frame whose image
+    differs stays in ``frames`` and is named in ``corrupt`` with the reason (the mosaic lists it
+    as unplaced); a changed ``frames.jsonl`` or ``sweep.json`` is a problem.
     """
     path = Path(path)
     if not path.is_dir():
@@ -360,14 +367,52 @@ def read_sweep(path: str | Path, *, strict: bool = False) -> Sweep:
     complete_path = path / COMPLETE_NAME
     summary = None
     complete = complete_path.is_file()
+    corrupt: dict[int, str] = {}
+    c: dict = {}
     if complete:
         try:
             c = json.loads(complete_path.read_text())
-            summary = c.get("summary") if isinstance(c, dict) else None
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            problems.append(InputError(str(complete_path), "not valid JSON"))
-            complete = False
-    return Sweep(path=path.resolve(), meta=meta, frames=frames, complete=complete, summary=summary, problems=tuple(problems))
+            if not isinstance(c, dict):
+                raise ValueError
+            summary = c.get("summary") if isinstance(c.get("summary"), dict) else None
+        except (json.JSONDecodeError, UnicodeDecodeError, ValueError):
+            problems.append(InputError(str(complete_path), "not valid JSON (the sweep is read as incomplete)"))
+            complete, c = False, {}
+    listed = c.get("frames")
+    if complete and isinstance(listed, int) and not isinstance(listed, bool) and listed != len(frames):
+        problems.append(InputError(str(complete_path), f"lists {listed} frames but {len(frames)} are on disk (the sweep is read as incomplete)",
+                                   "copy the whole sweep directory again, or use the frames there are"))
+        complete = False
+    if verify:
+        digests = c.get("sha256") if isinstance(c.get("sha256"), dict) else None
+        if digests is None:
+            problems.append(InputError(str(complete_path), "no checksums to verify against" if complete_path.is_file() else "missing: no checksums to verify against",
+                                       "an interrupted capture has no COMPLETE marker; run without --verify"))
+        else:
+            for name in ("frames.jsonl", "sweep.json"):
+                if name in digests and _sha256(path / name) != digests[name]:
+                    problems.append(InputError(str(path / name), "sha256 differs from the COMPLETE marker's (changed since capture)"))
+                    complete = False
+            for pos, rec in enumerate(frames):
+                want = digests.get(rec.image)
+                if want is None:
+                    corrupt[pos] = "no checksum in COMPLETE (frame not written by the capture)"
+                elif _sha256(rec.image_path) != want:
+                    corrupt[pos] = "sha256 differs from the COMPLETE marker's (the image changed since capture)"
+            if corrupt:
+                complete = False
+    return Sweep(path=path.resolve(), meta=meta, frames=frames, complete=complete, summary=summary, problems=tuple(problems), corrupt=corrupt)
+
+
+def _sha256(p: Path) -> str | None:
+    h = hashlib.sha256()
+    try:
+        with p.open("rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return h.hexdigest()
 
 
 def verify_checksums(path: str | Path) -> list[str]:

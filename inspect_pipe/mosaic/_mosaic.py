@@ -36,6 +36,7 @@ class MosaicOutput:
     group_of: dict[int, int]
     problems: list[str]  # bad-input findings, one line each (first is the headline)
     n_input: int = 0
+    warnings: list[str] = field(default_factory=list)  # a sweep's skipped lines and unplaceable frames: the mosaic stands
 
     @property
     def n_placed(self) -> int:
@@ -150,21 +151,27 @@ def run_mosaic_sweep(
     *,
     params: MosaicParams = MosaicParams(),
     progress: Callable[[str, int, int], None] | None = None,
+    verify: bool = False,
 ) -> MosaicOutput:
     """Mosaic a sweep: frames undistorted and rectified with the sweep's camera, and
-    ``m_per_px`` / ``wall_from_mosaic`` added to mosaic.json (mosaic.png's frames only)."""
+    ``m_per_px`` / ``wall_from_mosaic`` added to mosaic.json (mosaic.png's frames only).
+
+    A sweep cut by a crash (partial last line of frames.jsonl, a COMPLETE that lists more frames
+    than are there) and frames that cannot be read (listed under ``unplaced`` with the reason)
+    are ``warnings``: the whole frames are mosaicked. ``problems`` is left for a sweep of which
+    nothing could be placed. ``verify`` checks every file against COMPLETE's sha256 first."""
     from dataclasses import replace
 
     from inspect_pipe.capture import read_sweep
 
-    sweep = read_sweep(sweep_dir)
+    sweep = read_sweep(sweep_dir, verify=verify)
     if not sweep.frames:
         why = f" ({sweep.problems[0]})" if sweep.problems else ""
         raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
     source = SweepSource(sweep)
     reg_params = replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px)
     params = replace(params, register=reg_params)
-    extra: dict = {"input": {"kind": "sweep", "path": str(sweep_dir), "complete": sweep.complete, "n_frames": len(sweep)}}
+    extra: dict = {"input": {"kind": "sweep", "path": str(sweep_dir), "complete": sweep.complete, "n_frames": len(sweep), "verified": verify}}
     if sweep.problems:
         extra["input"]["skipped"] = [str(p) for p in sweep.problems]
     result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)
@@ -179,6 +186,10 @@ def run_mosaic_sweep(
             rec = sweep.frames[f["index"]]
             f["t_s"] = rec.t_s
         write_json(out_dir / "mosaic.json", doc)
-    if sweep.problems:
+    if result.H:  # the mosaic stands: unreadable frames and skipped lines are warnings
+        corrupt = [f"{Path(sweep.path) / sweep.frames[i].image}: {why} (unplaced)" for i, why in sorted(sweep.corrupt.items())]
+        result.warnings.extend([str(p) for p in sweep.problems] + corrupt + result.problems)
+        result.problems = []
+    elif sweep.problems:
         result.problems.append(str(sweep.problems[0]))
     return result

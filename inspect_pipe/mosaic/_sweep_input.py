@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ._io import read_image
+from ._register import FrameError
 
 
 class SweepSource:
@@ -64,6 +65,9 @@ class SweepSource:
         return self.sweep.frames[i].image
 
     def load(self, i: int) -> np.ndarray:
+        why = getattr(self.sweep, "corrupt", {}).get(i)
+        if why:  # read_sweep(verify=True) found its checksum wrong
+            raise FrameError(why)
         img = read_image(self.sweep.frames[i].image_path)
         if not np.any(self.dist):
             return img

@@ -112,6 +112,25 @@ def _one(args) -> RunOutcome:
         out = RunOutcome(Path(run_dir))
         out.error = str(err)
         return out
+    except Exception as err:  # noqa: BLE001 - one sweep's failure must not stop the batch
+        return _failed(run_dir, err)
+
+
+def _failed(run_dir, err: BaseException) -> RunOutcome:
+    """An unexpected failure as a value: the reason in one line, the traceback in RUN/error.txt."""
+    import traceback
+
+    from inspect_pipe._files import atomic_write
+
+    out = RunOutcome(Path(run_dir))
+    where = Path(run_dir) / "error.txt"
+    try:
+        atomic_write(where, "".join(traceback.format_exception(err)).encode(), fsync=False)
+        more = f" (traceback in {where})"
+    except OSError:
+        more = ""
+    out.error = f"{run_dir}: failed with {type(err).__name__}: {err}{more}"
+    return out
 
 
 def run_many(
@@ -155,7 +174,10 @@ def run_many(
         index = {f.key: i for i, f in enumerate(futs)}
         outs: list[RunOutcome | None] = [None] * len(futs)
         for f in as_completed(futs):
-            o = f.result()
+            try:
+                o = f.result()
+            except Exception as err:  # noqa: BLE001 - a worker that died (KilledWorker) or could not unpickle
+                o = _failed(args[index[f.key]][0], err)
             outs[index[f.key]] = o
             if on_done:
                 on_done(o)

@@ -52,6 +52,7 @@ class RunConfig:
     report: dict = field(default_factory=dict)  # ReportParams as a dict (see report_params)
     report_out: str | None = None  # default RUN/report
     threads: int = 0  # threads for one sweep (0: every core); results do not depend on it
+    verify: bool = False  # mosaic step: check the sweep's files against COMPLETE's sha256 (differing frames unplaced)
 
     def report_params(self):
         from inspect_pipe.report import CoverageParams, RatingParams, RegisterParams, ReportParams
@@ -121,7 +122,7 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     sweep = store.input_sweep()
     params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px, workers=cfg.threads))
     if sweep is not None:
-        out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress)
+        out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress, verify=cfg.verify)
     else:
         out = M.run_mosaic(M.FolderSource(Path(cfg.input)), store.mosaic_dir, params=params, progress=progress)
     if not out.H:
@@ -267,7 +268,7 @@ class Step:
 
 STEPS: tuple[Step, ...] = (
     Step("capture", run_capture_step, capture_done, ("input", "survey")),
-    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px")),
+    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px", "verify")),
     Step("detect", run_detect_step, detect_done, ("detect",)),
     Step("report", run_report_step, report_done, ("report", "report_out")),
 )
@@ -276,4 +277,5 @@ STEP_NAMES = tuple(s.name for s in STEPS)
 
 def step_options(step: Step, cfg: RunConfig) -> dict:
     d = asdict(cfg)
-    return json.loads(json.dumps({k: d[k] for k in step.keys}, default=str))
+    opts = {k: d[k] for k in step.keys if not (k == "verify" and not d[k])}  # runs recorded before --verify keep their mosaic
+    return json.loads(json.dumps(opts, default=str))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -81,8 +82,18 @@ def coverage_image(report, max_w: int = 900) -> np.ndarray:
     return img
 
 
-def coco(report) -> dict:
+def mosaic_png_path(report) -> Path:
+    """mosaic.png of the run: beside mosaic.json (``inputs.mosaic_where``), under the name it gives."""
+    name = report.inputs.mosaic_doc.get("mosaic") or "mosaic.png"
+    return Path(report.inputs.mosaic_where).resolve().parent / str(name)
+
+
+def coco(report, out: Path | None = None) -> dict:
+    """COCO instances of the mosaic; ``file_name`` is the mosaic's path relative to ``out``
+    (where coco.json is written), so a COCO tool opened on that folder finds the image."""
     m = report.inputs.mosaic
+    png = mosaic_png_path(report)
+    file_name = os.path.relpath(png, Path(out).resolve()) if out is not None else png.name
     cats = [{"id": 1, "name": "corrosion", "supercategory": "defect"}, {"id": 2, "name": "crack", "supercategory": "defect"}]
     ids = {c["name"]: c["id"] for c in cats}
     anns = []
@@ -101,7 +112,7 @@ def coco(report) -> dict:
                                 f"{report.trace.get('detector_engine')} engine, {report.trace.get('model_file')} v{report.trace.get('model_version')}",
                  "version": report.trace["software"], "date_created": report.trace["created_utc"]},
         "licenses": [],
-        "images": [{"id": 1, "file_name": "mosaic.png", "width": int(m.shape[1]), "height": int(m.shape[0])}],
+        "images": [{"id": 1, "file_name": file_name, "width": int(m.shape[1]), "height": int(m.shape[0])}],
         "categories": cats, "annotations": anns,
     }
 
@@ -158,7 +169,7 @@ def render_all(report, out: Path, *, log=print) -> dict:
     reg, csv_text = register_files(report)
     write_json(out / "defects.json", reg)
     atomic_write(out / "defects.csv", csv_text.encode())
-    write_json(out / "coco.json", coco(report))
+    write_json(out / "coco.json", coco(report, out))
     write_json(out / "coverage.json", {"format": "inspect_pipe.coverage/1", **report.coverage.to_json()})
     write_json(out / "rating.json", {"format": "inspect_pipe.rating/1", **report.rating.to_json()})
     assets = {"overlay": "assets/overlay.png", "coverage": "assets/coverage.png"}
