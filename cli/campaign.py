@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import StageProgress, choices, one_line_errors
 from inspect_pipe.errors import InputError
 
 HELP = (
@@ -22,6 +22,8 @@ HELP = (
     "  inspect-pipe campaign --replay out/campaign/failures/X__px4_like.yaml --shield px4_like"
 )
 
+Shield = choices("Shield", ("ours", "px4_like", "ardupilot_like"))  # inspect_pipe.campaign.SHIELDS (a test checks)
+
 
 @one_line_errors
 def campaign(
@@ -32,15 +34,14 @@ def campaign(
     shields: Annotated[str, typer.Option("--shields", help="comma-separated: ours,px4_like,ardupilot_like")] = "ours,px4_like,ardupilot_like",
     no_report: Annotated[bool, typer.Option("--no-report", help="skip report.html and its plots")] = False,
     replay: Annotated[Optional[Path], typer.Option("--replay", help="fly one scenario file with --shield and exit 1 on a collision")] = None,
-    shield: Annotated[str, typer.Option("--shield", help="with --replay: the shield to fly")] = "ours",
+    shield: Annotated[Shield, typer.Option("--shield", help="with --replay: the shield to fly")] = Shield.ours,
 ) -> None:
     """Run the flight safety campaign."""
     from inspect_pipe.campaign import SHIELDS, CampaignConfig, fly_scenario, run_campaign
     from inspect_pipe.flight import ExitStatus, load_scenario
 
     if replay is not None:
-        if shield not in SHIELDS:
-            raise InputError("--shield", f"unknown shield {shield!r}", "one of " + ", ".join(SHIELDS))
+        shield = shield.value
         sc = load_scenario(replay)
         res = fly_scenario(sc, shield)
         typer.echo(f"{sc.name} [{shield}]: {res.status.value}, {res.final_fsm.value} after {res.sim_time_s:.2f} s")
@@ -55,13 +56,11 @@ def campaign(
         raise InputError("--shields", "is empty", "one or more of " + ", ".join(SHIELDS))
     cfg = CampaignConfig(episodes=episodes, seed=seed, out=out, workers=workers, shields=names, report=not no_report).check()
 
-    step = max(1, episodes // 20)
-
-    def progress(done: int, total: int) -> None:
-        if done % step == 0 or done == total:
-            typer.echo(f"  {done}/{total} episodes", err=True)
-
-    summary = run_campaign(cfg, progress)
+    bar = StageProgress("campaign")
+    try:
+        summary = run_campaign(cfg, lambda done, total: bar("episodes", done, total))
+    finally:
+        bar.close()
     for name, s in summary["shields"].items():
         typer.echo(
             f"{name:15s} collision-free {s['collision_free']:.4f}  min clearance p0.1 {s['min_clearance_p001_m']} m  "

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from cli._common import fail, one_line_errors
+from cli._common import choices, console, fail, one_line_errors, progress_enabled
 from inspect_pipe.capture import SOURCE_SPECS, CaptureConfig, MonotonicClock, Progress, open_source, run_capture
 from inspect_pipe.errors import InputError
 
@@ -36,21 +35,32 @@ Ctrl-C stops cleanly (the sweep gets its COMPLETE marker). Exit 0 when the sweep
 readable), 2 on bad input.
 """
 
+ImageFormat = choices("ImageFormat", ("png", "jpg"))
+
 
 class _LiveLine:
+    """One live status line (rich.live) on a terminal; nothing otherwise or under -q."""
+
     def __init__(self) -> None:
-        self.tty = sys.stderr.isatty()
+        self.live = None
+        if progress_enabled():
+            from rich.live import Live
+            from rich.text import Text
+
+            self._text = Text
+            self.live = Live(Text("starting capture"), console=console, refresh_per_second=4, transient=False)
+            self.live.start()
 
     def __call__(self, p: Progress) -> None:
-        line = (f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
-                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}")
-        if self.tty:
-            sys.stderr.write("\r" + line + "   ")
-            sys.stderr.flush()
+        if self.live is not None:
+            self.live.update(self._text(
+                f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
+                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}"))
 
     def close(self) -> None:
-        if self.tty:
-            sys.stderr.write("\n")
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
 
 
 @one_line_errors
@@ -60,7 +70,7 @@ def capture(
     rate: Annotated[float, typer.Option("--rate", help="frames per second")] = 10.0,
     duration: Annotated[Optional[float], typer.Option("--duration", help="seconds to capture (default: until the source ends or Ctrl-C)")] = None,
     frames: Annotated[Optional[int], typer.Option("--frames", help="stop after this many frames")] = None,
-    image_format: Annotated[str, typer.Option("--format", help="png (lossless) or jpg")] = "png",
+    image_format: Annotated[ImageFormat, typer.Option("--format", help="png (lossless) or jpg")] = ImageFormat.png,
     exposure: Annotated[Optional[float], typer.Option("--exposure", help="manual exposure, s (default: the camera's)")] = None,
     speed: Annotated[float, typer.Option("--speed", help="replay: play this many times faster than recorded")] = 1.0,
     vessel: Annotated[Optional[str], typer.Option("--vessel", help="survey: vessel name")] = None,
@@ -73,8 +83,7 @@ def capture(
         raise fail(f"--rate {rate}: must be in (0, 200] Hz")
     if duration is not None and duration <= 0:
         raise fail(f"--duration {duration}: must be > 0 s")
-    if image_format not in ("png", "jpg"):
-        raise fail(f"--format {image_format}: choose png or jpg")
+    image_format = image_format.value
     if ":" not in source and source != "ids":
         raise InputError(f"--source {source}", "unknown source", f"one of {SOURCE_SPECS}")
     survey = {k: v for k, v in {"vessel": vessel, "hold": hold, "wall": wall, "frame_spacing_m": frame_spacing,

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import note, one_line_errors
 from cli.detect import DEFAULT, ENGINE_HELP, Engine
 
 HELP = """Simulated inspection flight over a demo wall with known defects, then the whole pipeline.
@@ -61,7 +61,7 @@ def demo(
                        no_pdf=no_pdf, m_per_px=None, focal_px=None, survey=DEMO_SURVEY, engine=engine.value)
     prog = RichProgress("demo")
     try:
-        o = run_pipeline(out, cfg, force=force, progress=prog, log=lambda s: typer.echo(s, err=True))
+        o = run_pipeline(out, cfg, force=force, progress=prog, log=note)
     finally:
         prog.close()
     print_outcome(o)

@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import choices, one_line_errors
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight import ExitStatus, FlightLogWriter, load_scenario, run_scenario
 from inspect_pipe.flight_stack import StackParams
@@ -25,6 +25,8 @@ HELP = (
     "  inspect-pipe fly --scenario scenarios/link_loss.yaml --log out/companion.jsonl --vehicle mavlink:udpout:127.0.0.1:14540"
 )
 
+Autopilot = choices("Autopilot", ("px4", "ardupilot"))  # inspect_pipe.flight.mavlink_codec.Autopilot
+
 
 @one_line_errors
 def fly(
@@ -32,7 +34,7 @@ def fly(
     log: Annotated[Path, typer.Option("--log", help="flight log to write (JSONL)")],
     sweep: Annotated[Optional[Path], typer.Option("--sweep", help="also write the camera's sweep (directory)")] = None,
     mavlink_sim: Annotated[Optional[str], typer.Option("--mavlink-sim", help="expose the simulator as a MAVLink vehicle on URL (udp:HOST:PORT listens), in real time")] = None,
-    autopilot: Annotated[str, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = "px4",
+    autopilot: Annotated[Autopilot, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = Autopilot.px4,
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="mavlink:URL: fly a real autopilot with the scenario's operator script")] = None,
 ) -> None:
     """Fly a scenario in the simulated cargo hold and write the flight log."""
@@ -40,7 +42,7 @@ def fly(
     if mavlink_sim is not None or vehicle is not None:  # real-time MAVLink flights (docs/base_station.md)
         from inspect_pipe.flight.mavlink_fly import fly_mavlink
 
-        raise typer.Exit(fly_mavlink(sc, log, mavlink_sim=mavlink_sim, autopilot=autopilot, vehicle=vehicle, echo=typer.echo))
+        raise typer.Exit(fly_mavlink(sc, log, mavlink_sim=mavlink_sim, autopilot=autopilot.value, vehicle=vehicle, echo=typer.echo))
     if log.exists() and log.is_dir():
         raise InputError(str(log), "is a directory", "give a file path for the flight log")
     recorder = None

@@ -5,9 +5,12 @@ Each command lives in its own module of this package and is registered here, onc
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import typer
 
 import inspect_pipe
+from cli._common import VerbosityGroup
 from cli import mosaic as _mosaic
 from cli import detect as _detect
 from cli import fly as _fly
@@ -20,12 +23,26 @@ from cli import demo as _demo
 from cli import campaign as _campaign
 
 app = typer.Typer(
+    cls=VerbosityGroup,  # -q/--quiet and -v/--verbose on the app and on every command
     name="inspect-pipe",
     help="Supervised-autonomy MAV inspection of cargo holds: fly, capture, mosaic, detect, report.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"inspect-pipe {inspect_pipe.__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[bool, typer.Option("--version", is_eager=True, callback=_print_version, help="Print the version and exit.")] = False,
+) -> None:
+    """Supervised-autonomy MAV inspection of cargo holds: fly, capture, mosaic, detect, report."""
 
 
 app.command("mosaic", help=_mosaic.HELP)(_mosaic.mosaic)

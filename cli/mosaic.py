@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import typer
 
-from cli._common import fail, one_line_errors
+from cli._common import StageProgress, choices, fail, one_line_errors
 from inspect_pipe.mosaic import DETECTORS, FolderSource, MosaicParams, RegisterParams, is_sweep, run_mosaic, run_mosaic_sweep
 
 HELP = """Mosaic a sweep (or a folder of overlapping images, sorted by name) into one seamless image.
@@ -36,38 +35,23 @@ from COMPLETE's) give one warning line; those frames are listed as unplaced with
 mosaic.json and the exit is 0 as long as some frames were placed.
 """
 
-
-class _Progress:
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.t0 = time.monotonic()
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if self.enabled:
-            sys.stderr.write(f"\r{stage:9s} {done}/{total}  {time.monotonic() - self.t0:6.1f} s   ")
-            sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
+Detector = choices("Detector", DETECTORS)
 
 
 @one_line_errors
 def mosaic(
     input: Path = typer.Argument(..., help="Sweep directory or folder of images (sorted by name)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory (created)."),
-    detector: str = typer.Option("sift", help=f"Feature detector: {', '.join(DETECTORS)}."),
+    detector: Detector = typer.Option("sift", help="Feature detector."),
     focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known: rectifies the mosaic to the wall plane."),
     seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line."),
     verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
 ) -> None:
-    if detector not in DETECTORS:
-        raise fail(f"--detector {detector!r}: unknown; choose one of {', '.join(DETECTORS)}")
+    detector = detector.value
     if focal_px < 0:
         raise fail(f"--focal-px {focal_px}: must be positive")
     params = MosaicParams(register=RegisterParams(detector=detector, focal_px=focal_px or None, seed=seed))
-    progress = _Progress(not quiet)
+    progress = StageProgress()  # rich bars on a terminal; none under -q
     t0 = time.monotonic()
     if is_sweep(input):  # camera model and vehicle states come with it
         result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify)

@@ -7,7 +7,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import note, one_line_errors
+from cli.run import Scheme, build_config
 from inspect_pipe.errors import InputError
 
 HELP = """Write the surveyor's report from a run directory's mosaic and detections.
@@ -29,19 +30,18 @@ Examples:
 def report(
     run_dir: Annotated[Path, typer.Argument(help="Run directory (inspect-pipe run) with mosaic/ and detect/.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
-    scheme: Annotated[str, typer.Option("--scheme", help="MSC.1/Circ.1330 or MSC.1/Circ.1399.")] = "MSC.1/Circ.1330",
+    scheme: Annotated[Scheme, typer.Option("--scheme", help="Coating rating scheme.")] = Scheme("MSC.1/Circ.1330"),
     area_m: Annotated[float, typer.Option("--area-m", help="Side of an area under consideration, m.")] = 1.0,
     m_per_px: Annotated[Optional[float], typer.Option("--m-per-px", help="Mosaic of a plain folder: metres per pixel.")] = None,
     no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
 ) -> None:
-    from cli.run import build_config
     from inspect_pipe.pipeline import RunStore
     from inspect_pipe.pipeline._steps import run_report_step
 
     if not run_dir.is_dir():
         raise InputError(str(run_dir), "not found" if not run_dir.exists() else "not a directory", "give a run directory written by inspect-pipe run")
     store = RunStore(run_dir)
-    cfg = build_config(str(run_dir), kinds="all", keyframe_spacing=0.0, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
+    cfg = build_config(str(run_dir), kinds="all", keyframe_spacing=0.0, scheme=scheme.value, area_m=area_m, no_pdf=no_pdf,
                        m_per_px=m_per_px, focal_px=None, report_out=out)
-    written = run_report_step(store, cfg, None, log=lambda s: typer.echo(s, err=True))
+    written = run_report_step(store, cfg, None, log=note)
     typer.echo(f"{written['html']}" + (f"\n{written['pdf']}" if written.get("pdf") else ""))

@@ -8,11 +8,16 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import StageProgress, choices, console, note, one_line_errors, progress_enabled
 from inspect_pipe._files import write_json
-from cli.detect import DEFAULT, ENGINE_HELP, Engine
+from cli.detect import DEFAULT, ENGINE_HELP, Engine, Kind
 from inspect_pipe.errors import InputError
+from inspect_pipe.pipeline import STEP_NAMES
+from inspect_pipe.report import SCHEMES
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE
+
+Step = choices("Step", STEP_NAMES)  # --rerun-from
+Scheme = choices("Scheme", SCHEMES)  # --scheme of run and report
 
 HELP = """Run the whole batch pipeline on one or many sweeps: capture (fly:SCENARIO.yaml only) ->
 mosaic -> detect -> report.
@@ -51,31 +56,7 @@ Examples:
 """
 
 
-class RichProgress:
-    """Per-step progress bars (rich) on a terminal; silent otherwise."""
-
-    def __init__(self, label: str, enabled: bool = True) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.label = label
-        self.tasks: dict[str, int] = {}
-        self.bar = None
-        if self.enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-            self.bar = Progress(TextColumn("{task.description:28s}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), transient=False)
-            self.bar.start()
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if not self.bar:
-            return
-        key = f"{self.label} {stage}"
-        if key not in self.tasks:
-            self.tasks[key] = self.bar.add_task(key, total=max(total, 1))
-        self.bar.update(self.tasks[key], completed=done, total=max(total, 1))
-
-    def close(self) -> None:
-        if self.bar:
-            self.bar.stop()
+RichProgress = StageProgress  # the name demo and older code import
 
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
@@ -121,12 +102,12 @@ def run(
     inputs: Annotated[list[str], typer.Argument(help="Sweep directories, image folders, or fly:SCENARIO.yaml.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Run directory (one input) or parent of run directories.")],
     force: Annotated[bool, typer.Option("--force", help="Redo every step.")] = False,
-    rerun_from: Annotated[Optional[str], typer.Option("--rerun-from", help="Redo this step and the following: capture, mosaic, detect, report.")] = None,
+    rerun_from: Annotated[Optional[Step], typer.Option("--rerun-from", help="Redo this step and the following ones.")] = None,
     workers: Annotated[int, typer.Option("--workers", help="Parallel sweeps on a local Dask cluster; 1 = no Dask.", min=1)] = 2,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Existing Dask scheduler, e.g. tcp://HOST:8786.")] = None,
-    kinds: Annotated[str, typer.Option("--kind", help="all, corrosion, crack, or a comma list.")] = "all",
+    kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
     keyframe_spacing: Annotated[float, typer.Option("--keyframe-spacing", help="Keyframes detected on their own, in frame widths apart (0: mosaic only).")] = 0.5,
-    scheme: Annotated[str, typer.Option("--scheme", help="Coating rating scheme: MSC.1/Circ.1330 or MSC.1/Circ.1399.")] = "MSC.1/Circ.1330",
+    scheme: Annotated[Scheme, typer.Option("--scheme", help="Coating rating scheme.")] = Scheme("MSC.1/Circ.1330"),
     area_m: Annotated[float, typer.Option("--area-m", help="Side of an area under consideration, m.")] = 1.0,
     m_per_px: Annotated[Optional[float], typer.Option("--m-per-px", help="Folder input: metres per mosaic pixel.")] = None,
     focal_px: Annotated[Optional[float], typer.Option("--focal-px", help="Folder input: focal length in pixels.")] = None,
@@ -134,10 +115,10 @@ def run(
     engine: Annotated[Engine, typer.Option("--engine", help="Detect step: " + ENGINE_HELP)] = DEFAULT,
     verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
 ) -> None:
-    from inspect_pipe.pipeline import STEP_NAMES, input_kind, run_many, run_pipeline
+    from inspect_pipe.pipeline import input_kind, run_many, run_pipeline
 
-    if rerun_from is not None and rerun_from not in STEP_NAMES:
-        raise InputError("--rerun-from", f"{rerun_from!r} is not a step", f"one of {', '.join(STEP_NAMES)}")
+    kinds, scheme = kind.value, scheme.value
+    rerun_from = rerun_from.value if rerun_from is not None else None
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
@@ -146,7 +127,7 @@ def run(
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
         try:
-            o = run_pipeline(out, cfgs[0], force=force, rerun_from=rerun_from, progress=prog, log=lambda s: typer.echo(s, err=True))
+            o = run_pipeline(out, cfgs[0], force=force, rerun_from=rerun_from, progress=prog, log=note)
         finally:
             prog.close()
         print_outcome(o)
@@ -158,10 +139,10 @@ def run(
     failed: list[str] = []
     errors: dict[str, str] = {}
     bar = None
-    if sys.stderr.isatty():
+    if progress_enabled():
         from rich.progress import Progress
 
-        bar = Progress()
+        bar = Progress(console=console)
         bar.start()
         task = bar.add_task("sweeps", total=len(jobs))
 

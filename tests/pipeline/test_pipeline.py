@@ -158,7 +158,7 @@ def test_run_command_bad_input(tmp_path):
     assert res.exit_code == 2 and "nope: not found" in res.output
     assert not (tmp_path / "o").exists()
     res = runner.invoke(app, ["run", str(FIXTURE), "-o", str(tmp_path / "o"), "--rerun-from", "paint"])
-    assert res.exit_code == 2 and "'paint' is not a step" in res.output
+    assert res.exit_code == 2 and "'paint' is not one of 'capture', 'mosaic', 'detect', 'report'" in res.output
     assert STEP_NAMES == ("capture", "mosaic", "detect", "report")
 
 
