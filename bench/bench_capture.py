@@ -38,6 +38,7 @@ from inspect_pipe.capture._source import default_cam_to_body
 from inspect_pipe.capture._geometry import Pose
 from inspect_pipe.capture.sources.sim import SimCameraParams, SimSource, WallRenderer
 from inspect_pipe.flight import load_scenario
+from inspect_pipe.ship import wall_frame
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "inspection_sweep_wall.yaml"
@@ -51,7 +52,7 @@ def _frames(size: tuple[int, int], n: int = 24) -> list[np.ndarray]:
     sc = load_scenario(SCENARIO)
     tex = sc.world.front_wall_texture
     cam = CameraModel.from_hfov(size[0], size[1], 60.0, SimCameraParams().dist)
-    r = WallRenderer(cam, cv2.imread(str(tex.image)), tex.m_per_px, tex.origin_uv, 12.0, 10.0, 16.0, SimCameraParams())
+    r = WallRenderer(cam, cv2.imread(str(tex.image)), tex.m_per_px, tex.origin_uv, wall_frame("front", 12.0, 10.0), 16.0, SimCameraParams())
     c2b = default_cam_to_body()
     rng = np.random.default_rng(0)
     out = []

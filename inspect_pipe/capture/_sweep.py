@@ -101,8 +101,58 @@ class SweepMeta:
     created_utc: str | None
     time_base: str  # what t_s counts: "host_monotonic_s" or "simulation_s"
     simulation: dict[str, Any] | None = None  # scenario name, hold dimensions (simulated sweeps)
-    wall_texture: WallTextureInfo | None = None  # simulated sweeps with a textured front wall
+    wall_texture: WallTextureInfo | None = None  # simulated sweeps: the texture of the wall surveyed
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
+    survey_plan: Any = None  # inspect_pipe.ship.SurveyPlan given to capture/import (--survey), or None
+    # What frame positions (``position_m``) are in: "hold" (the simulator knows the hold) or
+    # "takeoff" (a real autopilot's local frame turned to the take-off heading, origin at take-off;
+    # the survey plan's ``takeoff`` ties it to the hold).
+    odometry_frame: str = "hold"
+    sim_wall: str | None = None  # the simulator's wall the camera faced (front/back/left/right)
+
+    def hold_dims(self) -> tuple[float | None, float | None]:
+        """(length_m, width_m) of the hold: the plan's, else the simulation's."""
+        hold = (self.simulation or {}).get("hold") if isinstance(self.simulation, dict) else None
+        L = _num(hold.get("length_m")) if isinstance(hold, dict) else None
+        W = _num(hold.get("width_m")) if isinstance(hold, dict) else None
+        if self.survey_plan is not None:
+            L = self.survey_plan.hold.length_m or L
+            W = self.survey_plan.hold.width_m or W
+        if W is None and self.wall_texture is not None:
+            W = self.wall_texture.wall_width_m
+        if W is None and isinstance((self.survey or {}).get("wall_width_m"), (int, float)):
+            W = float(self.survey["wall_width_m"])
+        return L, W
+
+    def wall_frame(self):
+        """The surveyed wall's frame (``inspect_pipe.ship.WallFrame``): the plan's wall, else the
+        simulated wall the camera faced, else the front wall. A dimension the frame needs but
+        nobody gave is taken as 0 (u then counts from the centreline), which ``wall_frame_note`` says."""
+        from inspect_pipe.ship import Wall, wall_frame
+
+        wall = self.survey_plan.wall.name if self.survey_plan is not None else Wall.parse(self.sim_wall or "front")
+        L, W = self.hold_dims()
+        try:
+            return wall_frame(wall, L, W)
+        except ValueError:
+            return wall_frame(wall, L or 0.0, W or 0.0)
+
+    def wall_frame_note(self) -> str | None:
+        from inspect_pipe.ship import Wall, wall_frame
+
+        wall = self.survey_plan.wall.name if self.survey_plan is not None else Wall.parse(self.sim_wall or "front")
+        try:
+            wall_frame(wall, *self.hold_dims())
+        except ValueError as err:
+            return f"{err}: wall u counted from the hold's centreline / aft bulkhead instead (add it to the survey plan's hold)"
+        return None
+
+    def to_hold(self, position_m) -> np.ndarray:
+        """(N, 3) frame positions -> hold coordinates (the plan's take-off tie for "takeoff")."""
+        from inspect_pipe.ship import hold_from_takeoff
+
+        p = np.asarray(position_m, float).reshape(-1, 3)
+        return p.copy() if self.odometry_frame == "hold" else hold_from_takeoff(self.survey_plan, p)
 
     @property
     def K(self) -> np.ndarray:
@@ -239,7 +289,7 @@ def _meta(path: Path, doc: dict) -> SweepMeta:
     pose = Pose(R if R is not None else np.eye(3), np.asarray(t if t is not None else (0.0, 0.0, 0.0)))
     sim = doc.get("simulation") if isinstance(doc.get("simulation"), dict) else None
     texture = None
-    tex = (sim or {}).get("front_wall_texture")
+    tex = (sim or {}).get("wall_texture") or (sim or {}).get("front_wall_texture")
     if isinstance(tex, dict):
         img = _resolve(path, tex.get("image"))
         origin = _vec(tex.get("origin_uv"), 2)
@@ -251,12 +301,23 @@ def _meta(path: Path, doc: dict) -> SweepMeta:
     survey = {"vessel": None, "hold": None, "wall": None, "frame_spacing_m": None, "reference_frame": None}
     if isinstance(doc.get("survey"), dict):
         survey.update(doc["survey"])
+    plan = None
+    if doc.get("survey_plan") is not None:
+        from inspect_pipe.ship import parse_survey_plan
+
+        plan = parse_survey_plan(doc["survey_plan"], where + " (survey_plan)")
+    odo = doc.get("odometry_frame", "hold" if sim is not None else "takeoff")
+    if odo not in ("hold", "takeoff"):
+        raise InputError(where, f"field 'odometry_frame': {odo!r} is not 'hold' or 'takeoff'")
+    sim_wall = (sim or {}).get("wall", "front")
+    if sim_wall not in ("front", "back", "left", "right"):
+        raise InputError(where, f"field 'simulation.wall': {sim_wall!r} is not front, back, left or right")
     return SweepMeta(
         format=fmt, camera=camera, cam_to_body=pose, survey=survey,
         software_version=str(doc.get("software_version", "")), source=doc.get("source") or {},
         rate_hz=_num(doc.get("rate_hz")), image_format=str(doc.get("image_format", "png")),
         created_utc=doc.get("created_utc"), time_base=str(doc.get("time_base", "host_monotonic_s")),
-        simulation=sim, wall_texture=texture, raw=doc,
+        simulation=sim, wall_texture=texture, raw=doc, survey_plan=plan, odometry_frame=odo, sim_wall=sim_wall,
     )
 
 

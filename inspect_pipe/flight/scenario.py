@@ -88,11 +88,21 @@ class WallTexture:
     defects_mask: Path | None = None
 
 
+WALLS = ("front", "back", "left", "right")  # the walls a scenario can texture (SPEC.md wall frames)
+
+
 @dataclass(frozen=True)
 class World:
     hold: Hold
     boxes: tuple[Box, ...] = ()
-    front_wall_texture: WallTexture | None = None
+    wall_textures: tuple[tuple[str, WallTexture], ...] = ()  # (wall, texture), wall in WALLS
+
+    def texture(self, wall: str) -> WallTexture | None:
+        return dict(self.wall_textures).get(wall)
+
+    @property
+    def front_wall_texture(self) -> WallTexture | None:
+        return self.texture("front")
 
 
 @dataclass(frozen=True)
@@ -250,7 +260,7 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
     duration = r.number(top["duration_s"], "duration_s", positive=True, hi=24 * 3600)
     seed = r.integer(top.get("seed", 0), "seed")
 
-    w = r.mapping(top["world"], "world", {"hold", "boxes", "front_wall_texture"}, {"hold"})
+    w = r.mapping(top["world"], "world", {"hold", "boxes", "front_wall_texture", "wall_textures"}, {"hold"})
     h = r.mapping(w["hold"], "world.hold", {"length_m", "width_m", "height_m"}, {"length_m", "width_m", "height_m"})
     hold = Hold(
         r.number(h["length_m"], "world.hold.length_m", lo=2.0, hi=500.0),
@@ -277,17 +287,29 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
                 f"x in [0, {hold.length_m}], y in [{-hold.width_m / 2}, {hold.width_m / 2}], z in [0, {hold.height_m}]",
             )
         boxes.append(Box(lo, hi))  # type: ignore[arg-type]
-    texture = None
-    if w.get("front_wall_texture") is not None:
-        f = "world.front_wall_texture"
-        t = r.mapping(w["front_wall_texture"], f, {"image", "m_per_px", "origin_uv", "defects_mask"}, {"image", "m_per_px"})
-        texture = WallTexture(
+    def texture(t, f: str) -> WallTexture:
+        t = r.mapping(t, f, {"image", "m_per_px", "origin_uv", "defects_mask"}, {"image", "m_per_px"})
+        return WallTexture(
             image=r.path(t["image"], f + ".image"),
             m_per_px=r.number(t["m_per_px"], f + ".m_per_px", positive=True),
             origin_uv=r.vector(t.get("origin_uv", [0.0, hold.height_m]), f + ".origin_uv", 2),  # type: ignore[arg-type]
             defects_mask=r.path(t["defects_mask"], f + ".defects_mask") if t.get("defects_mask") else None,
         )
-    world = World(hold, tuple(boxes), texture)
+
+    textures: dict[str, WallTexture] = {}
+    if w.get("wall_textures") is not None:
+        wt = w["wall_textures"]
+        if not isinstance(wt, dict):
+            raise r.fail("world.wall_textures", f"is {type(wt).__name__}", "a mapping {front|back|left|right: {image, m_per_px, ...}}")
+        for name, t in wt.items():
+            if name not in WALLS:
+                raise r.fail(f"world.wall_textures.{name}", "is not a wall", "one of " + ", ".join(WALLS))
+            textures[name] = texture(t, f"world.wall_textures.{name}")
+    if w.get("front_wall_texture") is not None:
+        if "front" in textures:
+            raise r.fail("world.front_wall_texture", "also given as world.wall_textures.front", "give it once")
+        textures["front"] = texture(w["front_wall_texture"], "world.front_wall_texture")
+    world = World(hold, tuple(boxes), tuple(sorted(textures.items())))
 
     v = r.mapping(top["vehicle"], "vehicle", {"start", "battery", "max_height_m", "mass_scale", "thrust_scale"}, {"start"})
     s = r.mapping(v["start"], "vehicle.start", {"position", "yaw"}, {"position"})

@@ -7,7 +7,8 @@ each exposure. From those:
 - ``m_per_px``: metres of wall per mosaic pixel, from the focal length and the estimated distance
   of the camera to the wall (front sonar, less the camera's forward offset on the body);
 - ``wall_from_mosaic``: the 3x3 map from mosaic pixels to wall metres (u right from the wall's left
-  edge, v up from the floor). Its scale is ``m_per_px``; its rotation and offset are fitted
+  edge, v up from the floor) of the surveyed wall (the survey plan's, or the simulated wall the
+  vehicle faced; positions reach the hold frame through the plan's take-off tie). Its scale is ``m_per_px``; its rotation and offset are fitted
   robustly (Huber) between the frame centres in the mosaic and the wall points the vehicle's
   position estimates put in front of the camera. Odometry drifts and the mosaic does not, so the
   mosaic fixes the shape and odometry only places it. The odometry's linear drift (a velocity bias
@@ -52,11 +53,13 @@ class SweepSource:
 
     def centre_px(self, i: int) -> np.ndarray | None:
         """Odometry's prediction of where the frame centre is on the wall, in frame pixels
-        (x right = -y world, y down = -z world)."""
+        (x right = wall u, y down = -wall v)."""
         f = self.sweep.frames[i]
         if f.position_m is None or self._m_per_px is None:
             return None
-        return np.array([-f.position_m[1], -f.position_m[2]]) / self._m_per_px
+        meta = self.sweep.meta
+        u, v = meta.wall_frame().to_wall(meta.to_hold(f.position_m))[0]
+        return np.array([u, -v]) / self._m_per_px
 
     def __len__(self) -> int:
         return len(self.sweep.frames)
@@ -111,22 +114,14 @@ class WallGeometry:
         }
 
 
-def _wall_width(meta) -> float | None:
-    if meta.wall_texture is not None and meta.wall_texture.wall_width_m:
-        return float(meta.wall_texture.wall_width_m)
-    sim = meta.simulation or {}
-    hold = sim.get("hold") if isinstance(sim, dict) else None
-    if isinstance(hold, dict) and isinstance(hold.get("width_m"), (int, float)):
-        return float(hold["width_m"])
-    width = (meta.survey or {}).get("wall_width_m")
-    return float(width) if isinstance(width, (int, float)) else None
-
-
 def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px: tuple[float, float]) -> WallGeometry | None:
     """Mosaic -> wall map for the placed frames ``H`` (frame px -> mosaic px), or None when the
     sweep carries no position or wall distance estimates."""
-    cam_t = np.asarray(sweep.meta.cam_to_body.t, float)
-    width = _wall_width(sweep.meta)
+    meta = sweep.meta
+    cam_t = np.asarray(meta.cam_to_body.t, float)
+    frame = meta.wall_frame()  # the surveyed wall (survey plan, or the simulated wall faced)
+    a = frame.facing_heading_rad  # the vehicle faces the wall: the camera's offset turned with it
+    cam_offset = np.array([cam_t[0] * np.cos(a) - cam_t[1] * np.sin(a), cam_t[0] * np.sin(a) + cam_t[1] * np.cos(a), cam_t[2]])
     mos, wall, dists, times = [], [], [], []
     c = np.array([principal_px[0], principal_px[1], 1.0])
     for i, h in H.items():
@@ -137,9 +132,7 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
             continue
         p = h @ c
         mos.append(p[:2] / p[2])
-        y_cam = f.position_m[1] + cam_t[1]
-        z_cam = f.position_m[2] + cam_t[2]
-        wall.append(((width / 2 if width is not None else 0.0) - y_cam, z_cam))
+        wall.append(frame.to_wall(meta.to_hold(f.position_m)[0] + cam_offset)[0])
         times.append(f.t_s)
     if not dists or len(mos) < 3:
         return None

@@ -11,6 +11,7 @@ from inspect_pipe.capture import CameraModel, Pose, wall_to_frame_homography
 from inspect_pipe.capture._geometry import distort_points, rotation_from_rpy, texture_px_to_wall, undistort_points
 from inspect_pipe.capture._source import default_cam_to_body
 from inspect_pipe.capture.sources.sim import SimCameraParams, WallRenderer
+from inspect_pipe.ship import wall_frame
 
 CLEAN = SimCameraParams(vignetting=0.0, read_noise_dn=0.0, shot_noise_dn=0.0, paint_bgr=(0, 0, 0), other_bgr=(0, 0, 0))
 
@@ -63,7 +64,7 @@ def test_rendered_dots_land_where_the_truth_homography_says():
     tex, centres = dots_texture()
     mpp, origin = 0.003, (3.5, 2.6)
     cam = CameraModel.from_hfov(752, 480, 60, dist=CLEAN.dist)
-    r = WallRenderer(cam, tex, mpp, origin, 12.0, 10.0, 16.0, CLEAN)
+    r = WallRenderer(cam, tex, mpp, origin, wall_frame("front", 12.0, 10.0), 16.0, CLEAN)
     c2b = default_cam_to_body()
     for rpy, pos in [((0.0, 0.0, 0.0), (10.6, 0.2, 1.6)), ((0.04, -0.06, 0.1), (10.8, 0.0, 1.7))]:
         R_wb = rotation_from_rpy(*rpy)
@@ -86,7 +87,7 @@ def test_motion_blur_follows_speed_times_exposure():
     # GIVEN a camera moving sideways at 0.5 m/s for a 20 ms exposure, 1.5 m from the wall
     tex, _ = dots_texture()
     cam = CameraModel.from_hfov(752, 480, 60)
-    r = WallRenderer(cam, tex, 0.003, (3.5, 2.6), 12.0, 10.0, 16.0, CLEAN)
+    r = WallRenderer(cam, tex, 0.003, (3.5, 2.6), wall_frame("front", 12.0, 10.0), 16.0, CLEAN)
     c2b = default_cam_to_body()
     poses = [Pose(c2b.R, np.array([10.5, 0.2 - 0.01 * (k + 0.5) / 9, 1.6]) + c2b.t) for k in range(9)]
     sharp, _ = r.render([poses[4]], 1.0, np.random.default_rng(0))

@@ -1,5 +1,5 @@
-"""The simulated vehicle's camera: renders the scenario's textured front wall from the true 6-DoF
-pose during the exposure.
+"""The simulated vehicle's camera: renders the wall the vehicle faces at take-off (any of the four,
+textured from the scenario's ``world.wall_textures``) from the true 6-DoF pose during the exposure.
 
 A plane seen through a pinhole camera is exactly a homography, so each output pixel is mapped
 (through the lens distortion) to an undistorted pixel, through the inverse wall homography to wall
@@ -26,11 +26,11 @@ from inspect_pipe.capture._geometry import (
     rotation_from_rpy,
     texture_px_to_wall,
     undistort_points,
-    wall_to_frame_homography,
 )
 from inspect_pipe.capture._source import Grab, SourceInfo, default_cam_to_body
 from inspect_pipe.capture._state import TrajectoryFeed, TrueState, VehicleState
 from inspect_pipe.errors import InputError
+from inspect_pipe.ship import SIM_WALLS, WallFrame, wall_frame
 
 __all__ = ["SimCameraParams", "SimSource", "WallRenderer", "trajectory_from_ticks", "tick_to_state"]
 
@@ -56,26 +56,35 @@ class SimCameraParams:
 # --------------------------------------------------------------------------- state from the simulator
 
 
-class _DeadReckoner:
-    """Position estimate as the vehicle knows it: x from the front-wall distance estimate
-    (hold length minus distance) when the wall is in range, else integrated; y integrated from the
-    estimated lateral speed; z the estimated altitude."""
+def faced_wall(scenario) -> WallFrame:
+    """The wall the vehicle faces at take-off (the nearest of the four walls' facing headings):
+    the wall its camera surveys."""
+    hold = scenario.world.hold
+    yaw = scenario.vehicle.start_yaw_rad
+    frames = [wall_frame(w, hold.length_m, hold.width_m) for w in SIM_WALLS]
+    return min(frames, key=lambda f: abs(math.remainder(yaw - f.facing_heading_rad, 2 * math.pi)))
 
-    def __init__(self, start: tuple[float, float, float], yaw0: float, length_m: float) -> None:
-        self.x, self.y = start[0], start[1]
+
+class _DeadReckoner:
+    """Position estimate as the vehicle knows it (hold frame): the estimated horizontal speed
+    integrated along the take-off heading, except the distance to the faced wall, which is the
+    front-range estimate whenever the wall is in range; z the estimated altitude."""
+
+    def __init__(self, start: tuple[float, float, float], yaw0: float, wall: WallFrame) -> None:
+        self.p = np.array(start[:2], float)
         self.c, self.s = math.cos(yaw0), math.sin(yaw0)
-        self.length_m = length_m
+        self.n = np.asarray(wall.normal[:2], float)  # into the hold
+        self.o = np.asarray(wall.origin[:2], float)
         self.t: float | None = None
 
     def update(self, t: float, vx: float, vy: float, front_m: float | None) -> tuple[float, float]:
         if self.t is not None:
             dt = t - self.t
-            self.x += (self.c * vx - self.s * vy) * dt
-            self.y += (self.s * vx + self.c * vy) * dt
+            self.p += np.array([self.c * vx - self.s * vy, self.s * vx + self.c * vy]) * dt
         self.t = t
         if front_m is not None:
-            self.x = self.length_m - front_m
-        return self.x, self.y
+            self.p += (front_m - float((self.p - self.o) @ self.n)) * self.n
+        return float(self.p[0]), float(self.p[1])
 
 
 def tick_to_state(rec, reckoner: _DeadReckoner) -> VehicleState:
@@ -97,7 +106,7 @@ def tick_to_state(rec, reckoner: _DeadReckoner) -> VehicleState:
 
 def trajectory_from_ticks(scenario, ticks) -> TrajectoryFeed:
     v = scenario.vehicle
-    dr = _DeadReckoner(v.start_position_m, v.start_yaw_rad, scenario.world.hold.length_m)
+    dr = _DeadReckoner(v.start_position_m, v.start_yaw_rad, faced_wall(scenario))
     feed = TrajectoryFeed()
     for rec in ticks:
         feed.append(tick_to_state(rec, dr))
@@ -109,7 +118,7 @@ class TrajectoryRecorder:
 
     def __init__(self, scenario) -> None:
         v = scenario.vehicle
-        self._dr = _DeadReckoner(v.start_position_m, v.start_yaw_rad, scenario.world.hold.length_m)
+        self._dr = _DeadReckoner(v.start_position_m, v.start_yaw_rad, faced_wall(scenario))
         self.feed = TrajectoryFeed()
 
     def __call__(self, rec) -> None:
@@ -141,14 +150,15 @@ class WallRenderer:
         texture: np.ndarray,
         m_per_px: float,
         origin_uv: tuple[float, float],
-        hold_length_m: float,
-        hold_width_m: float,
+        wall: WallFrame,
         hold_height_m: float,
         params: SimCameraParams = SimCameraParams(),
     ) -> None:
         self.camera, self.params = camera, params
         self.m_per_px, self.origin_uv = float(m_per_px), (float(origin_uv[0]), float(origin_uv[1]))
-        self.L, self.W, self.Hh = hold_length_m, hold_width_m, hold_height_m
+        self.wall = wall
+        self.W, self.Hh = float(wall.width_m), hold_height_m  # the wall's extent in u and v
+        self._toward_wall = -np.asarray(wall.normal, float)  # viewing direction that faces the wall
         self.levels = [texture if texture.ndim == 3 else cv2.cvtColor(texture, cv2.COLOR_GRAY2BGR)]
         while min(self.levels[-1].shape[:2]) > 64 and len(self.levels) < 8:
             self.levels.append(cv2.pyrDown(self.levels[-1]))
@@ -172,10 +182,10 @@ class WallRenderer:
         self._ucorners = np.array([[lo[0], lo[1], 1], [hi[0], lo[1], 1], [lo[0], hi[1], 1], [hi[0], hi[1], 1]], float).T
         # the whole wall at 2 cm/px marks what is wall (vs floor, side walls, open top)
         self._wall_mpp = 0.02
-        self._wall_mask = np.full((max(2, int(round(hold_height_m / 0.02))), max(2, int(round(hold_width_m / 0.02)))), 255, np.uint8)
+        self._wall_mask = np.full((max(2, int(round(hold_height_m / 0.02))), max(2, int(round(self.W / 0.02)))), 255, np.uint8)
 
     def homography(self, cam_pose_world: Pose) -> np.ndarray:
-        return wall_to_frame_homography(self.camera.K, cam_pose_world.R, cam_pose_world.t, self.L, self.W)
+        return self.wall.homography_to_frame(self.camera.K, cam_pose_world.R, cam_pose_world.t)
 
     def _render_one(self, cam_pose_world: Pose) -> np.ndarray:
         """Float32 BGR albedo (0..255) seen from one camera pose, without photometry."""
@@ -184,7 +194,7 @@ class WallRenderer:
         uvw = Hinv @ self._X
         wz = uvw[2]
         # points behind the camera map to negative depth: the wall-plane depth of a pixel ray
-        depth_ok = (cam_pose_world.R.T @ np.array([1.0, 0.0, 0.0]))  # wall normal in camera frame
+        depth_ok = cam_pose_world.R.T @ self._toward_wall  # wall normal in camera frame
         with np.errstate(divide="ignore", invalid="ignore"):
             u = uvw[0] / wz
             v = uvw[1] / wz
@@ -208,16 +218,16 @@ class WallRenderer:
         return img
 
     def _axis_distance(self, cam: Pose) -> float:
-        ax = cam.R[:, 2]
-        if ax[0] <= 1e-6:
+        along = float(cam.R[:, 2] @ self._toward_wall)
+        if along <= 1e-6:
             return -1.0
-        return (self.L - cam.t[0]) / ax[0]
+        return float(self.wall.distance(cam.t)[0]) / along
 
     def _render_undistorted(self, cam: Pose) -> np.ndarray | None:
         """Float32 BGR albedo of the undistorted view (with margin), or None when part of the view
         looks away from the wall plane (then the per-pixel path handles it)."""
         H = self.homography(cam)
-        n_cam = cam.R.T @ np.array([1.0, 0.0, 0.0])
+        n_cam = cam.R.T @ self._toward_wall
         rays = np.linalg.inv(self.camera.K) @ self._ucorners
         if np.any(n_cam @ rays <= 1e-6):
             return None
@@ -300,15 +310,16 @@ class SimSource:
         cam_cfg = sc.camera
         camera = CameraModel.from_hfov(cam_cfg.width, cam_cfg.height, cam_cfg.hfov_deg, self.params.dist, name="sim")
         hold = sc.world.hold
-        tex = sc.world.front_wall_texture
+        wall = faced_wall(sc)
+        tex = sc.world.texture(wall.wall.sim)
         if tex is not None:
             img = cv2.imread(str(tex.image), cv2.IMREAD_COLOR)
             if img is None:
-                raise InputError(str(tex.image), "cannot read the front-wall texture", "a PNG or JPEG image")
+                raise InputError(str(tex.image), f"cannot read the {wall.wall.sim} wall's texture", "a PNG or JPEG image")
             texture, mpp, origin = img, tex.m_per_px, tex.origin_uv
         else:
-            texture, mpp, origin = _procedural_wall(hold.width_m, hold.height_m, sc.seed), 0.01, (0.0, hold.height_m)
-        self.renderer = WallRenderer(camera, texture, mpp, origin, hold.length_m, hold.width_m, hold.height_m, self.params)
+            texture, mpp, origin = _procedural_wall(float(wall.width_m), hold.height_m, sc.seed), 0.01, (0.0, hold.height_m)
+        self.renderer = WallRenderer(camera, texture, mpp, origin, wall, hold.height_m, self.params)
         self._texture_info = (mpp, origin, tex)
         extra = {
             "scenario": sc.name,
@@ -321,19 +332,21 @@ class SimSource:
         return SourceInfo("sim", f"simulated camera of scenario {sc.name}", camera, self.cam_to_body, triggered=True, extra=extra)
 
     def sweep_extra(self, sweep_dir: Path) -> dict:
-        """What sweep.json says about the simulation: scenario, hold, the front-wall texture."""
+        """What sweep.json says about the simulation: scenario, hold, the wall faced and its texture.
+        Positions are in the hold frame (``odometry_frame: hold``)."""
         from inspect_pipe.capture._sweep import WallTextureInfo
 
         hold = self.scenario.world.hold
+        wall = self.renderer.wall if self.renderer is not None else faced_wall(self.scenario)
         sim = {"scenario": self.scenario.name, "scenario_file": str(Path(self.scenario.source).resolve()) if self.scenario.source else None,
                "seed": self.scenario.seed, "hold": {"length_m": hold.length_m, "width_m": hold.width_m, "height_m": hold.height_m},
-               "front_wall_texture": None}
+               "wall": wall.wall.sim, "wall_texture": None}
         mpp, origin, tex = self._texture_info
         if tex is not None:
             info = WallTextureInfo(Path(tex.image), mpp, tuple(origin), Path(tex.defects_mask) if tex.defects_mask else None,
-                                   hold.width_m, hold.height_m)
-            sim["front_wall_texture"] = info.to_json(Path(sweep_dir))
-        return {"simulation": sim}
+                                   float(wall.width_m), hold.height_m)
+            sim["wall_texture"] = info.to_json(Path(sweep_dir))
+        return {"simulation": sim, "odometry_frame": "hold"}
 
     def _cam_pose(self, st: VehicleState) -> Pose:
         tr = st.truth
