@@ -172,3 +172,22 @@ def choices(name: str, values) -> type[Enum]:
     """A str Enum of ``values`` for an option, so that ``--help`` lists them and a wrong value is
     refused in one line (typer turns an Enum annotation into a choice)."""
     return Enum(name, {str(v): str(v) for v in values}, type=str)
+
+
+# --- the survey plan (--survey PLAN.yaml) on capture, import, mosaic, run and report ----------
+
+SURVEY_HELP = ("Survey plan (YAML, format inspect_pipe.survey_plan/1, docs/ship.md): vessel, survey, hold frames, "
+               "the wall surveyed and the take-off point; locations in the report are given in ship terms from it.")
+
+
+def load_plan(path):
+    """The ``--survey`` file as ``inspect_pipe.ship.SurveyPlan`` (None when not given); a bad plan
+    is one line naming the file and the field. Its warnings (e.g. an IMO check digit) are noted."""
+    if path is None:
+        return None
+    from inspect_pipe.ship import load_survey_plan
+
+    plan = load_survey_plan(path)
+    for w in plan.warnings:
+        note(f"warning: {path}: {w}")
+    return plan

@@ -9,8 +9,9 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import choices, console, fail, one_line_errors, progress_enabled
+from cli._common import SURVEY_HELP, choices, console, fail, load_plan, one_line_errors, progress_enabled
 from inspect_pipe.capture import SOURCE_SPECS, CaptureConfig, MonotonicClock, Progress, open_source, run_capture
+from inspect_pipe.capture._vehicle_feed import open_vehicle_feed
 from inspect_pipe.errors import InputError
 
 HELP = f"""Capture a sweep (inspect_pipe.sweep/1: sweep.json, frames.jsonl, images/, COMPLETE) from a
@@ -27,6 +28,13 @@ Examples:
   inspect-pipe capture --source v4l2:/dev/video0 -o out/sweep1 --rate 10 --duration 600
 
   inspect-pipe capture --source ids --exposure 0.002 -o out/hold2 --vessel "MV Example" --hold 2 --wall fwd
+
+  inspect-pipe capture --source v4l2:/dev/video0 --vehicle mavlink:udp:0.0.0.0:14550 --survey plan.yaml -o out/s2
+
+With --vehicle each frame carries the autopilot's state at mid-exposure (LOCAL_POSITION_NED,
+ATTITUDE, DISTANCE_SENSOR by orientation, landed state), interpolated between messages on a clock
+mapped with TIMESYNC; if the link dies, frames keep coming with state null and the live line
+counts them. --survey stores the survey plan in the sweep (docs/ship.md).
 
   inspect-pipe capture --source replay:out/sweep1 -o out/sweep1_copy
 
@@ -55,7 +63,7 @@ class _LiveLine:
         if self.live is not None:
             self.live.update(self._text(
                 f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
-                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}"))
+                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}" + (f"  no vehicle state {p.no_state}" if p.no_state else "")))
 
     def close(self) -> None:
         if self.live is not None:
@@ -78,6 +86,8 @@ def capture(
     wall: Annotated[Optional[str], typer.Option("--wall", help="survey: wall (e.g. fwd bulkhead)")] = None,
     frame_spacing: Annotated[Optional[float], typer.Option("--frame-spacing", help="survey: ship frame spacing, m")] = None,
     reference_frame: Annotated[Optional[str], typer.Option("--reference-frame", help="survey: ship frame number at the wall's left edge")] = None,
+    vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="vehicle state for every frame: mavlink:URL (a PX4/ArduPilot autopilot; e.g. mavlink:udp:0.0.0.0:14550) or sim:SCENARIO.yaml; interpolated at mid-exposure")] = None,
+    survey_plan: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " Stored in the sweep.")] = None,
 ) -> None:
     if not (0 < rate <= 200):
         raise fail(f"--rate {rate}: must be in (0, 200] Hz")
@@ -90,21 +100,36 @@ def capture(
                                 "reference_frame": reference_frame}.items() if v is not None}
     if not (0 < speed <= 1000):
         raise fail(f"--speed {speed}: must be in (0, 1000]")
+    plan = load_plan(survey_plan)
     src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure, speed=speed)
+    feed, extra = None, {}
+    if vehicle is not None:
+        if time_base == "simulation_s":
+            src.close()
+            raise fail(f"--vehicle {vehicle}: a simulated camera already carries its vehicle's state")
+        try:
+            feed, odometry = open_vehicle_feed(vehicle, clock=clock.now)
+        except BaseException:
+            src.close()
+            raise
+        extra = {"odometry_frame": odometry, "vehicle": feed.describe()}
     if time_base == "simulation_s":  # the scenario's camera section sets the simulated camera
         rate = src.scenario.camera.fps if rate == 10.0 else rate
     cfg = CaptureConfig(rate_hz=rate, duration_s=duration, max_frames=frames, image_format=image_format,
-                        survey=survey, time_base=time_base, wait_for_writer=time_base == "simulation_s")
+                        survey=survey, time_base=time_base, wait_for_writer=time_base == "simulation_s",
+                        survey_plan=None if plan is None else plan.to_json())
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     live = _LiveLine()
     try:
-        res = run_capture(src, out, clock=clock, config=cfg, on_progress=live, stop=stop)
+        res = run_capture(src, out, clock=clock, config=cfg, on_progress=live, stop=stop, state_feed=feed, sweep_extra=extra)
     except KeyboardInterrupt:  # pragma: no cover - run_capture handles it; belt and braces
         res = None
     finally:
         live.close()
         signal.signal(signal.SIGTERM, old)
+        if feed is not None:
+            feed.close()
     if res is None:
         raise typer.Exit(130)
     jit = res.jitter_p99_s() * 1000
@@ -112,6 +137,7 @@ def capture(
         f"{out}: {res.frames_written} frames, {res.reason.value}{': ' + res.detail if res.detail else ''}; "
         f"drops {res.drops} (writer {res.dropped_backpressure}, camera {res.dropped_source}, late {res.skipped_deadlines}); "
         f"interval jitter p99 {jit:.2f} ms; {res.bytes_written / 2**20:.1f} MiB"
+        + (f"; {res.frames_without_state} frames without vehicle state (link down or late)" if feed is not None else "")
     )
     problems = getattr(src, "problems", ())
     if problems:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from cli._common import StageProgress, choices, fail, one_line_errors
+from cli._common import SURVEY_HELP, StageProgress, choices, fail, load_plan, one_line_errors
 from inspect_pipe.mosaic import DETECTORS, FolderSource, MosaicParams, RegisterParams, is_sweep, run_mosaic, run_mosaic_sweep
 
 HELP = """Mosaic a sweep (or a folder of overlapping images, sorted by name) into one seamless image.
@@ -46,18 +46,22 @@ def mosaic(
     focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known: rectifies the mosaic to the wall plane."),
     seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
     verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
+    survey: Path = typer.Option(None, "--survey", help=SURVEY_HELP + " A sweep: the plan's wall and take-off tie place the mosaic on that wall (over the plan stored in the sweep)."),
 ) -> None:
     detector = detector.value
+    plan = load_plan(survey)
     if focal_px < 0:
         raise fail(f"--focal-px {focal_px}: must be positive")
     params = MosaicParams(register=RegisterParams(detector=detector, focal_px=focal_px or None, seed=seed))
     progress = StageProgress()  # rich bars on a terminal; none under -q
     t0 = time.monotonic()
     if is_sweep(input):  # camera model and vehicle states come with it
-        result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify)
+        result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify, survey_plan=plan)
     else:
         if verify:
             raise fail(f"{input}: --verify needs a sweep directory (its COMPLETE marker holds the checksums)")
+        if plan is not None:
+            raise fail(f"{input}: --survey needs a sweep directory (a plain folder has no vehicle positions to place on the wall)")
         result = run_mosaic(FolderSource(input), out, params=params, progress=progress)
     progress.close()
     n = result.n_input

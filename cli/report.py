@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import note, one_line_errors
+from cli._common import SURVEY_HELP, load_plan, note, one_line_errors
 from cli.run import Scheme, build_config
 from inspect_pipe.errors import InputError
 
@@ -34,6 +34,7 @@ def report(
     area_m: Annotated[float, typer.Option("--area-m", help="Side of an area under consideration, m.")] = 1.0,
     m_per_px: Annotated[Optional[float], typer.Option("--m-per-px", help="Mosaic of a plain folder: metres per pixel.")] = None,
     no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
+    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " Default: the plan stored in the sweep.")] = None,
 ) -> None:
     from inspect_pipe.pipeline import RunStore
     from inspect_pipe.pipeline._steps import run_report_step
@@ -42,6 +43,6 @@ def report(
         raise InputError(str(run_dir), "not found" if not run_dir.exists() else "not a directory", "give a run directory written by inspect-pipe run")
     store = RunStore(run_dir)
     cfg = build_config(str(run_dir), kinds="all", keyframe_spacing=0.0, scheme=scheme.value, area_m=area_m, no_pdf=no_pdf,
-                       m_per_px=m_per_px, focal_px=None, report_out=out)
+                       m_per_px=m_per_px, focal_px=None, report_out=out, survey_plan=load_plan(survey))
     written = run_report_step(store, cfg, None, log=note)
     typer.echo(f"{written['html']}" + (f"\n{written['pdf']}" if written.get("pdf") else ""))

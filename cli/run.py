@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import StageProgress, choices, console, note, one_line_errors, progress_enabled
+from cli._common import SURVEY_HELP, StageProgress, choices, console, load_plan, note, one_line_errors, progress_enabled
 from inspect_pipe._files import write_json
 from cli.detect import DEFAULT, ENGINE_HELP, Engine, Kind
 from inspect_pipe.errors import InputError
@@ -61,7 +61,7 @@ RichProgress = StageProgress  # the name demo and older code import
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
                  m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
-                 engine: str = DEFAULT_ENGINE, verify: bool = False):
+                 engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None):
     from inspect_pipe.pipeline import DetectConfig, RunConfig
     from inspect_pipe.report import SCHEMES
 
@@ -74,7 +74,8 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
     if m_per_px:
         report["m_per_px"] = m_per_px
     return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine),
-                     report=report, report_out=str(report_out) if report_out else None, verify=verify)
+                     report=report, report_out=str(report_out) if report_out else None, verify=verify,
+                     survey_plan=survey_plan.to_json() if survey_plan is not None else None)
 
 
 def check_engine(dc) -> None:
@@ -114,15 +115,18 @@ def run(
     no_pdf: Annotated[bool, typer.Option("--no-pdf", help="Do not render report.pdf.")] = False,
     engine: Annotated[Engine, typer.Option("--engine", help="Detect step: " + ENGINE_HELP)] = DEFAULT,
     verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
+    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP)] = None,
 ) -> None:
     from inspect_pipe.pipeline import input_kind, run_many, run_pipeline
+
+    plan = load_plan(survey)
 
     kinds, scheme = kind.value, scheme.value
     rerun_from = rerun_from.value if rerun_from is not None else None
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
-                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify) for s in inputs]
+                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan) for s in inputs]
     check_engine(cfgs[0].detect)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))

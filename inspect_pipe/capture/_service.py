@@ -46,6 +46,7 @@ class CaptureConfig:
     encoders: int = 2
     min_free_bytes: int = 200 * 2**20  # stop cleanly before the disk is full
     survey: dict = field(default_factory=dict)  # vessel, hold, wall, frame_spacing_m, reference_frame
+    survey_plan: dict | None = None  # the survey plan (inspect_pipe.ship.SurveyPlan.to_json()), stored in sweep.json
     time_base: str = "host_monotonic_s"  # or "simulation_s" with a simulated clock
     overwrite: bool = False
     wait_for_writer: bool = False  # simulated time only: wait for the writer instead of dropping
@@ -59,6 +60,7 @@ class Progress:
     drops: int
     bytes_written: int
     queued: int
+    no_state: int = 0  # frames written with state null although a vehicle feed was given (link down)
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,7 @@ class CaptureResult:
     bytes_written: int
     clock_fit: dict | None
     writer_error: str | None
+    frames_without_state: int = 0  # with a vehicle feed: frames its telemetry did not cover
 
     @property
     def drops(self) -> int:
@@ -137,6 +140,8 @@ def _meta_for(info: SourceInfo, cfg: CaptureConfig, clock: Clock, extra: dict | 
         "cam_to_body": info.cam_to_body.to_json(),
         "survey": survey,
     }
+    if cfg.survey_plan is not None:
+        doc["survey_plan"] = cfg.survey_plan
     if extra:
         doc.update(extra)
     return doc
@@ -179,6 +184,7 @@ def run_capture(
     t_origin = 0.0 if config.time_base == "simulation_s" else clock.now()
     reason, detail = StopReason.SOURCE_ENDED, ""
     grabbed = 0
+    no_state = 0
     dropped_source = 0
     jitter: list[float] = []
     intervals: list[float] = []
@@ -236,6 +242,8 @@ def run_capture(
                 dev.append(g.t_device_s)
                 host.append(g.t_exposure_start_s)
             state = g.state if g.state is not None else (state_feed.state_at(t_mid) if state_feed is not None else None)
+            if state_feed is not None and state is None:
+                no_state += 1  # the link is down or late: the frame is kept, with state null
             utc = clock.utc(t_mid)
             record = {
                 "t_s": round(t_mid - t_origin, 6),
@@ -276,14 +284,14 @@ def run_capture(
                     el = now - t_start
                     on_progress(Progress(writer.stats.written, el, grabbed / el if el > 0 else 0.0,
                                          writer.stats.dropped_backpressure + dropped_source + (sched.skipped_total if sched else 0),
-                                         writer.stats.bytes_written, writer.queued))
+                                         writer.stats.bytes_written, writer.queued, no_state))
     except KeyboardInterrupt:
         reason = StopReason.INTERRUPTED
     finally:
         source.close()
         elapsed = clock.now() - t_start
         fit = clock_fit(dev, host)
-        summary = {"stop_reason": reason.value, "detail": detail, "frames_grabbed": grabbed,
+        summary = {"stop_reason": reason.value, "detail": detail, "frames_grabbed": grabbed, "frames_without_state": no_state if state_feed is not None else None,
                    "dropped_source": dropped_source, "skipped_deadlines": sched.skipped_total if sched else 0,
                    "elapsed_s": round(elapsed, 3), "device_to_host_clock": fit}
         stats = writer.close(summary)
@@ -295,4 +303,5 @@ def run_capture(
         dropped_backpressure=stats.dropped_backpressure, dropped_source=dropped_source,
         skipped_deadlines=sched.skipped_total if sched else 0, jitter_s=tuple(jitter), interval_error_s=tuple(intervals),
         elapsed_s=elapsed, bytes_written=stats.bytes_written, clock_fit=fit, writer_error=writer.error,
+        frames_without_state=no_state,
     )

@@ -6,7 +6,8 @@ an autopilot does for a companion computer:
 
 * heartbeat (1 Hz), ATTITUDE, LOCAL_POSITION_NED, HIGHRES_IMU (50 Hz), every new DISTANCE_SENSOR
   and OPTICAL_FLOW_RAD reading, BATTERY_STATUS (2 Hz), EXTENDED_SYS_STATE (5 Hz);
-* COMMAND_LONG arm/disarm, take-off, land, set mode (acknowledged with COMMAND_ACK);
+* COMMAND_LONG arm/disarm, take-off, land, set mode (acknowledged with COMMAND_ACK); TIMESYNC
+  requests answered with the autopilot's boot clock;
 * velocity set-points (SET_POSITION_TARGET_LOCAL_NED, velocity only) tracked by the autopilot's
   velocity controller in offboard/guided; older than ``setpoint_timeout_s`` the vehicle hovers
   (PX4: COM_OF_LOSS_T; ArduCopter: the guided-velocity timeout). PX4 refuses offboard unless
@@ -137,7 +138,7 @@ class SimulatedAutopilot:
         if self.spec.flavour is mc.Autopilot.PX4:
             main, sub = mc.px4_main_mode(m), (m >> 24) & 0xFF
             name = mc.Px4Mode(main).name if main in mc.Px4Mode._value2member_map_ else str(main)
-            return name + ({mc.PX4_AUTO_LAND: ".LAND", mc.PX4_AUTO_LOITER: ".LOITER", 2: ".TAKEOFF"}.get(sub, "") if main == mc.Px4Mode.AUTO else "")
+            return name + ({mc.PX4_AUTO_LAND: ".LAND", mc.PX4_AUTO_LOITER: ".LOITER", mc.PX4_AUTO_TAKEOFF: ".TAKEOFF"}.get(sub, "") if main == mc.Px4Mode.AUTO else "")
         return mc.ArduCopterMode(m).name if m in mc.ArduCopterMode._value2member_map_ else str(m)
 
     def _set_mode(self, base_mode: float, main: float, sub: float) -> int:
@@ -197,6 +198,9 @@ class SimulatedAutopilot:
             result = self._command(m)
             self.st.acks.append((m.command, result))
             self.ep.send(self.common.MAVLink_command_ack_message(m.command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()))
+        elif kind == "TIMESYNC":
+            if m.tc1 == 0:  # a request: answer with the autopilot's boot clock, as PX4 and ArduPilot do
+                self.ep.send(self.common.MAVLink_timesync_message(int(self.t * 1e9), m.ts1))
         elif kind == "SET_MODE":
             if m.target_system == sysid:
                 self._set_mode(m.base_mode, (m.custom_mode >> 16) & 0xFF if self.spec.flavour is mc.Autopilot.PX4 else m.custom_mode,
@@ -225,7 +229,7 @@ class SimulatedAutopilot:
             alt = p[6] if math.isfinite(p[6]) and p[6] > 0 else 1.0
             st.takeoff_alt_m = min(alt, self.sc.max_height_m)
             if self.spec.flavour is mc.Autopilot.PX4:
-                st.custom_mode = mc.px4_custom_mode(mc.Px4Mode.AUTO, 2)
+                st.custom_mode = mc.px4_custom_mode(mc.Px4Mode.AUTO, mc.PX4_AUTO_TAKEOFF)
             return mc.MAV_RESULT_ACCEPTED
         if c == mc.MAV_CMD_NAV_LAND:
             if self.spec.flavour is mc.Autopilot.PX4:

@@ -64,12 +64,14 @@ def run_mosaic(
     group_of: dict[int, int] = {}
     images: list[Path] = []
     groups_json = []
+    model_of: dict[int, str] = {}
     unplaced = dict(reg.unplaced)
     for g, group in enumerate(reg.groups):
         if progress:
             progress("blending", g + 1, len(reg.groups))
         try:
-            mosaic, Hc = render(source.load, {f: group.H[f] for f in group.keyframes}, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
+            load = _undistorting(source.load, group.camera) if _distorted(group.camera, reg.size_wh) else source.load
+            mosaic, Hc = render(load, {f: group.H[f] for f in group.keyframes}, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
             k0 = group.keyframes[0]
             shift = Hc[k0] @ np.linalg.inv(group.H[k0])  # the canvas offset, for frames not blended
             for f in group.frames:
@@ -90,7 +92,9 @@ def run_mosaic(
         groups_json.append({
             "id": k, "image": path.name, "size_wh": [int(mosaic.shape[1]), int(mosaic.shape[0])],
             "n_frames": len(group.frames), "n_keyframes": len(group.keyframes), "rms_px": round(group.rms_px, 4),
+            **_model_json(group, reg.size_wh),
         })
+        model_of.update({f: group.model for f in group.frames})
     single_frame = len(source) == 1 and 0 in reg.n_features  # readable, nothing to register it to
     if single_frame:  # one image is its own mosaic
         img = source.load(0)
@@ -108,7 +112,8 @@ def run_mosaic(
         "software": f"inspect_pipe {inspect_pipe.__version__}",
         "mosaic": images[0].name if images else None,
         "frames": [
-            {"index": f, "file": source.name(f), "H": H_all[f].tolist(), "group": group_of[f], "image": _image_name(group_of[f])}
+            {"index": f, "file": source.name(f), "H": H_all[f].tolist(), "group": group_of[f], "image": _image_name(group_of[f]),
+             "model": model_of.get(f, "homography")}
             for f in sorted(H_all)
         ],
         "unplaced": [{"index": f, "file": source.name(f), "reason": r} for f, r in sorted(unplaced.items())],
@@ -125,7 +130,33 @@ def run_mosaic(
     write_json(out_dir / "mosaic.json", doc)
 
     problems = _problems(source, unplaced, H_all, single_frame)
+    problems += [f"group {g['id']}: {g['note']}" for g in groups_json if "contradicts" in g.get("note", "")]
     return MosaicOutput(out_dir, images, reg, H_all, group_of, problems, len(source))
+
+
+def _distorted(camera, size_wh: tuple[int, int], tolerance_px: float = 0.5) -> bool:
+    """Whether the group's homographies are for undistorted pixels (the distortion found matters)."""
+    return camera is not None and camera.max_distortion_px(size_wh) > tolerance_px
+
+
+def _undistorting(load: Callable[[int], np.ndarray], camera) -> Callable[[int], np.ndarray]:
+    import cv2
+
+    dist = np.array([camera.k1, camera.k2, 0.0, 0.0])
+    return lambda i: cv2.undistort(load(i), camera.K, dist)
+
+
+def _model_json(group, size_wh: tuple[int, int]) -> dict:
+    """What global model placed a group's frames, and the camera it used or found."""
+    out: dict = {"model": group.model}
+    if group.camera is not None:
+        cam = group.camera
+        out["camera"] = {"focal_px": round(float(cam.f), 2), "principal_px": [float(cam.cx), float(cam.cy)],
+                         "k1": float(cam.k1), "k2": float(cam.k2),
+                         "distortion_applied": _distorted(cam, size_wh)}
+    if group.note:
+        out["note"] = group.note
+    return out
 
 
 _BAD_INPUT_MARKS = ("unreadable", "truncated", "not a ", "empty file", "cannot read", "unsupported", "size ")
@@ -152,6 +183,7 @@ def run_mosaic_sweep(
     params: MosaicParams = MosaicParams(),
     progress: Callable[[str, int, int], None] | None = None,
     verify: bool = False,
+    survey_plan=None,
 ) -> MosaicOutput:
     """Mosaic a sweep: frames undistorted and rectified with the sweep's camera, and
     ``m_per_px`` / ``wall_from_mosaic`` added to mosaic.json (mosaic.png's frames only).
@@ -159,12 +191,15 @@ def run_mosaic_sweep(
     A sweep cut by a crash (partial last line of frames.jsonl, a COMPLETE that lists more frames
     than are there) and frames that cannot be read (listed under ``unplaced`` with the reason)
     are ``warnings``: the whole frames are mosaicked. ``problems`` is left for a sweep of which
-    nothing could be placed. ``verify`` checks every file against COMPLETE's sha256 first."""
+    nothing could be placed. ``verify`` checks every file against COMPLETE's sha256 first.
+    ``survey_plan`` (``inspect_pipe.ship.SurveyPlan``) overrides the plan stored in the sweep."""
     from dataclasses import replace
 
     from inspect_pipe.capture import read_sweep
 
     sweep = read_sweep(sweep_dir, verify=verify)
+    if survey_plan is not None:  # --survey: the surveyed wall and the take-off tie, over what the sweep stored
+        sweep = replace(sweep, meta=replace(sweep.meta, survey_plan=survey_plan))
     if not sweep.frames:
         why = f" ({sweep.problems[0]})" if sweep.problems else ""
         raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")

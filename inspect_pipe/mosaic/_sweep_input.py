@@ -97,11 +97,15 @@ class WallGeometry:
     free_scale_m_per_px: float  # scale a free similarity fit would choose: a consistency check
     n_frames: int
     drift_m_per_s: tuple[float, float] = (0.0, 0.0)  # odometry drift rate found in (u, v)
+    wall: str = "fore_transverse_bulkhead"  # the surveyed wall whose frame (u, v) is (inspect_pipe.ship.Wall)
+    wall_note: str | None = None  # a hold dimension the wall frame lacked
 
     def to_json(self) -> dict:
         return {
             "m_per_px": self.m_per_px,
             "wall_from_mosaic": self.wall_from_mosaic.tolist(),
+            "wall": self.wall,
+            "wall_frame_note": self.wall_note,
             "wall_fit": {
                 "method": "scale from focal length and wall distance; rotation, offset and the odometry's "
                 "linear drift fitted (Huber) between frame centres in the mosaic and the vehicle's position estimates",
@@ -176,7 +180,8 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
     r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + t), axis=1)
     T = np.eye(3)
     T[:2, :2], T[:2, 2] = L, t
-    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift))
+    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift),
+                        frame.wall.value, meta.wall_frame_note())
 
 
 def is_sweep(path: Path) -> bool:

@@ -53,6 +53,15 @@ class RunConfig:
     report_out: str | None = None  # default RUN/report
     threads: int = 0  # threads for one sweep (0: every core); results do not depend on it
     verify: bool = False  # mosaic step: check the sweep's files against COMPLETE's sha256 (differing frames unplaced)
+    survey_plan: dict | None = None  # --survey: the survey plan (inspect_pipe.ship), stored in a captured sweep, used by mosaic and report
+
+    def plan(self):
+        """The survey plan as ``inspect_pipe.ship.SurveyPlan`` (None without one)."""
+        if self.survey_plan is None:
+            return None
+        from inspect_pipe.ship import parse_survey_plan
+
+        return parse_survey_plan(self.survey_plan, "--survey")
 
     def report_params(self):
         from inspect_pipe.report import CoverageParams, RatingParams, RegisterParams, ReportParams
@@ -62,6 +71,7 @@ class RunConfig:
             register=RegisterParams(**r.get("register", {})), coverage=CoverageParams(**r.get("coverage", {})),
             rating=RatingParams(**r.get("rating", {})), m_per_px=r.get("m_per_px"),
             region_wall_m=tuple(r["region_wall_m"]) if r.get("region_wall_m") else None, pdf=r.get("pdf", True),
+            survey_plan=self.plan(),
         )
 
 
@@ -102,7 +112,8 @@ def run_capture_step(store: RunStore, cfg: RunConfig, progress: Progress | None)
     clock = ManualClock(0.0)
     src = SimSource(sc, trajectory=rec.feed, clock=clock)
     n = int(sc.duration_s * sc.camera.fps)
-    ccfg = CaptureConfig(rate_hz=sc.camera.fps, time_base="simulation_s", wait_for_writer=True, survey=dict(cfg.survey))
+    ccfg = CaptureConfig(rate_hz=sc.camera.fps, time_base="simulation_s", wait_for_writer=True, survey=dict(cfg.survey),
+                         survey_plan=cfg.survey_plan)
     res = run_capture(src, store.sweep_dir, clock=clock, config=ccfg,
                       on_progress=(lambda p: progress("capture", min(p.frames, n), n)) if progress else None)
     if res.writer_error:
@@ -122,7 +133,8 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     sweep = store.input_sweep()
     params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px, workers=cfg.threads))
     if sweep is not None:
-        out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress, verify=cfg.verify)
+        out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress, verify=cfg.verify,
+                                 survey_plan=cfg.plan())
     else:
         out = M.run_mosaic(M.FolderSource(Path(cfg.input)), store.mosaic_dir, params=params, progress=progress)
     if not out.H:
@@ -267,15 +279,16 @@ class Step:
 
 
 STEPS: tuple[Step, ...] = (
-    Step("capture", run_capture_step, capture_done, ("input", "survey")),
-    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px", "verify")),
+    Step("capture", run_capture_step, capture_done, ("input", "survey", "survey_plan")),
+    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px", "verify", "survey_plan")),
     Step("detect", run_detect_step, detect_done, ("detect",)),
-    Step("report", run_report_step, report_done, ("report", "report_out")),
+    Step("report", run_report_step, report_done, ("report", "report_out", "survey_plan")),
 )
 STEP_NAMES = tuple(s.name for s in STEPS)
 
 
 def step_options(step: Step, cfg: RunConfig) -> dict:
     d = asdict(cfg)
-    opts = {k: d[k] for k in step.keys if not (k == "verify" and not d[k])}  # runs recorded before --verify keep their mosaic
+    # runs recorded before --verify / --survey existed keep their steps when those are not given
+    opts = {k: d[k] for k in step.keys if not (k in ("verify", "survey_plan") and not d[k])}
     return json.loads(json.dumps(opts, default=str))

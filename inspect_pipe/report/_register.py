@@ -21,7 +21,8 @@ from ._geo import Survey, WallMap
 STATUSES = ("suggested", "confirmed", "rejected")
 REGISTER_FORMAT = "inspect_pipe.defect_register/1"
 CSV_COLUMNS = ("id", "class", "status", "note", "u_m", "v_m", "area_m2", "length_m", "confidence",
-               "frame_range", "height_above_tank_top_m", "n_frames", "frames", "polygon_wall_m")
+               "frame_range", "height_above_tank_top_m", "location", "wall", "frame", "from_centreline_m", "side",
+               "n_frames", "frames", "polygon_wall_m")
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,13 @@ class RegisterParams:
     frame_vote_fraction: float = 0.5  # ... and half of the keyframes that see the pixel
     match_m: float = 0.05  # a previous entry is the same defect if centroids are this close (same class)
     polygon_tolerance_m: float = 0.003
+    # screening (_screen.py): seams and plate edges, confirmation across keyframes
+    seam_straight_rms_m: float = 0.003  # a crack this close to a straight line (RMS) may be a seam ...
+    seam_length_m: float = 0.30  # ... it is one when itself this long ...
+    seam_extension_m: float = 0.30  # ... or when the crack response goes on along the line this far each side ...
+    seam_prob: float = 0.25  # ... at this probability ...
+    seam_support: float = 0.5  # ... over this fraction of that extension
+    confirm_fraction: float = 0.5  # keyframes that saw an entry: at least this share must have found it
 
 
 @dataclass(frozen=True)
@@ -60,6 +68,8 @@ class Defect:
     redetected: bool = True  # False: kept from a previous run because the surveyor decided on it
     crop: str | None = None
     context: str | None = None
+    crop_frame: int | None = None  # the sweep frame the crop was cut from (the sharpest that saw it); None: from the mosaic
+    location: dict | None = None  # in ship terms (inspect_pipe.ship.Location.to_json); None without a survey plan
 
     def to_json(self) -> dict:
         r = lambda x: round(float(x), 4)  # noqa: E731
@@ -76,7 +86,8 @@ class Defect:
             "height_above_tank_top_m": None if self.height_above_tank_top_m is None else r(self.height_above_tank_top_m),
             "polygon_mosaic_px": [list(p) for p in self.polygon_mosaic_px],
             "bbox_mosaic_xywh": list(self.bbox_mosaic_xywh), "area_px": self.area_px,
-            "redetected": self.redetected, "crop": self.crop, "context": self.context,
+            "redetected": self.redetected, "crop": self.crop, "context": self.context, "crop_frame": self.crop_frame,
+            "location": self.location,
         }
 
     @classmethod
@@ -97,6 +108,8 @@ class Defect:
                 height_above_tank_top_m=d.get("height_above_tank_top_m"),
                 status=check_status(d.get("status"), where, str(d["id"])), note=str(d.get("note") or ""),
                 redetected=bool(d.get("redetected", True)), crop=d.get("crop"), context=d.get("context"),
+                crop_frame=d.get("crop_frame") if isinstance(d.get("crop_frame"), int) else None,
+                location=d.get("location") if isinstance(d.get("location"), dict) else None,
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(where, f"defect {d.get('id', '?')!r}: field {err} missing or malformed") from None
@@ -315,20 +328,30 @@ def _ranges(ix) -> str:
     return " ".join(out)
 
 
+def _location_cells(loc: dict | None) -> list:
+    if not loc:
+        return ["", "", "", "", ""]
+    blank = lambda x: "" if x is None else x  # noqa: E731
+    return [loc.get("text", ""), blank(loc.get("wall")), blank(loc.get("frame")), blank(loc.get("from_centreline_m")), blank(loc.get("side"))]
+
+
 def register_json(defects: list[Defect], extra: dict) -> dict:
     return {"format": REGISTER_FORMAT, "statuses": list(STATUSES), **extra, "defects": [d.to_json() for d in defects]}
 
 
-def register_csv(defects: list[Defect]) -> str:
+def register_csv(defects: list[Defect], position_decimals: int = 4) -> str:
+    """One row per entry; positions to ``position_decimals`` (the register's stated precision),
+    areas to 1 cm² (0.1 cm² below 10 cm²), lengths to 1 cm."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
+    p = position_decimals
     for d in defects:
         w.writerow([
-            d.id, d.cls, d.status, d.note, f"{d.centroid_wall_m[0]:.4f}", f"{d.centroid_wall_m[1]:.4f}",
-            f"{d.area_m2:.6f}", "" if d.length_m is None else f"{d.length_m:.4f}", f"{d.confidence:.4f}",
-            d.frame_range or "", "" if d.height_above_tank_top_m is None else f"{d.height_above_tank_top_m:.4f}",
-            len(d.frames), _ranges(d.frames), json.dumps([[round(u, 4), round(v, 4)] for u, v in d.polygon_wall_m]),
+            d.id, d.cls, d.status, d.note, f"{d.centroid_wall_m[0]:.{p}f}", f"{d.centroid_wall_m[1]:.{p}f}",
+            f"{d.area_m2:.4f}" if d.area_m2 >= 1e-3 else f"{d.area_m2:.5f}", "" if d.length_m is None else f"{d.length_m:.2f}", f"{d.confidence:.2f}",
+            d.frame_range or "", "" if d.height_above_tank_top_m is None else f"{d.height_above_tank_top_m:.{p}f}",
+            *_location_cells(d.location), len(d.frames), _ranges(d.frames), json.dumps([[round(u, 4), round(v, 4)] for u, v in d.polygon_wall_m]),
         ])
     return buf.getvalue()
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -13,10 +13,12 @@ import numpy as np
 
 import inspect_pipe
 from inspect_pipe.errors import InputError
+from inspect_pipe.ship import locate
 
 from ._coverage import Coverage, CoverageParams, WallGrid, compute_coverage, sharpness
 from ._geo import Survey, WallMap, parse_survey
 from ._rating import RatingParams, WallRating, rate_wall
+from ._screen import Precision, screen_defects
 from ._register import (
     Defect, FrameView, KeyframeDetection, RegisterParams, assign_ids, build_defects, merged_masks, read_register,
     register_csv, register_json,
@@ -33,6 +35,7 @@ class ReportParams:
     m_per_px: float | None = None  # for a mosaic without wall_from_mosaic (plain folder input)
     region_wall_m: tuple[float, float, float, float] | None = None  # u0, v0, u1, v1; default: survey / texture / footprints
     pdf: bool = True
+    survey_plan: object | None = None  # inspect_pipe.ship.SurveyPlan (--survey); default: the one stored in the sweep
 
 
 @dataclass
@@ -61,6 +64,9 @@ class Report:
     params: ReportParams
     trace: dict
     unplaced: list[dict]
+    suppressed: list = field(default_factory=list)  # _screen.Suppressed: candidates left out, with the rule
+    precision: object = None  # _screen.Precision
+    crop_info: dict = field(default_factory=dict)  # defect id -> {frame, sharpness, of}: where its crop was cut (render_all)
 
 
 def sha256_file(path: Path) -> str:
@@ -127,8 +133,14 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         raise InputError(where, "frame size unknown", "mosaic.json of a sweep, or frames with 'size_wh'")
     valid = inp.mosaic[:, :, 3] > 0
     masks, warped = merged_masks(inp.class_masks, inp.keyframes, params=params.register)
-    new = build_defects(masks, inp.class_probs, wall, views, survey, keyframe_masks=warped, valid=valid, params=params.register)
+    candidates = build_defects(masks, inp.class_probs, wall, views, survey, keyframe_masks=warped, valid=valid, params=params.register)
+    region = _region(params, survey_raw, sweep, views, wall, valid)
+    new, suppressed = screen_defects(candidates, masks, inp.class_probs, wall.m_per_px, region, survey.tank_top_v_m, valid, params=params.register)
     defects = assign_ids(new, inp.previous, params=params.register)
+    plan, wall_frame = survey_plan_of(sweep, params.survey_plan)
+    if plan is not None:
+        defects = [replace(d, location=locate(plan, wall_frame, d.centroid_wall_m).to_json()) for d in defects]
+    precision = Precision.of(wall.m_per_px, wall.fit_rms_m)
 
     # sharpness of every placed frame, for coverage
     sharp: dict[int, float] = {}
@@ -140,7 +152,6 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
             g = cv2.imread(str(rec.image_path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
             if g is not None:
                 sharp[v.index] = sharpness(cv2.resize(g, (g.shape[1] * 2, g.shape[0] * 2)))
-    region = _region(params, survey_raw, sweep, views, wall, valid)
     grid = WallGrid.around(*region, params.coverage.cell_m)
     coverage = compute_coverage(views, wall, grid, sharp, params=params.coverage)
 
@@ -171,10 +182,30 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "wall_map": wall.source, "wall_fit_rms_m": wall.fit_rms_m, "wall_fit_max_m": wall.fit_max_m,
         "m_per_px": wall.m_per_px,
         "checksums_sha256": inp.checksums,
+        "precision": precision.to_json(),
+        "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
+                      "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
         "params": json.loads(json.dumps(asdict(params), default=str)),
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
-    return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []))
+    return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
+
+
+def survey_plan_of(sweep, override=None):
+    """(plan, wall frame) of a report: ``override`` (--survey) or the plan stored in the sweep,
+    with the hold's dimensions from the plan or the simulation; (None, None) without a plan."""
+    meta = getattr(sweep, "meta", None)
+    plan = override if override is not None else getattr(meta, "survey_plan", None)
+    if plan is None:
+        return None, None
+    if meta is not None:
+        return plan, replace(meta, survey_plan=plan).wall_frame()
+    from inspect_pipe.ship import plan_wall_frame
+
+    try:
+        return plan, plan_wall_frame(plan)
+    except ValueError as err:
+        raise InputError("survey plan", str(err), "add the hold's length_m / width_m to the plan") from None
 
 
 def load_previous(out_dir: Path) -> list[Defect]:
@@ -235,4 +266,5 @@ def register_files(report: Report) -> tuple[dict, str]:
         "survey": report.survey.to_json(),
         "traceability": report.trace,
     }
-    return register_json(report.defects, extra), register_csv(report.defects)
+    dec = report.precision.position_decimals if report.precision is not None else 4
+    return register_json(report.defects, extra), register_csv(report.defects, dec)
