@@ -149,6 +149,98 @@ def build_demo_wall(out_dir: Path, data: Path | None, *, size_m=(3.6, 2.4), m_pe
     return _finish(out_dir, img, labels, truth, m_per_px, origin_uv, "built from ../shared/data (CC0 VT corrosion + CrackForest at run time)")
 
 
+@dataclass(frozen=True)
+class WallChange:
+    """A change made by ``edit_demo_wall``: a defect that appeared or grew between two surveys."""
+
+    kind: str  # "new" or "grown"
+    truth_id: str  # its id on the edited wall
+    centroid_wall_m: tuple[float, float]
+    area_old_m2: float
+    area_new_m2: float
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "truth": self.truth_id, "centroid_wall_m": [round(x, 4) for x in self.centroid_wall_m],
+                "area_old_m2": round(self.area_old_m2, 6), "area_new_m2": round(self.area_new_m2, 6)}
+
+
+def edit_demo_wall(wall: DemoWall, out_dir: Path, data: Path, *, n_new: int = 3, n_grow: int = 2, grow: float = 1.4,
+                   seed: int = 1) -> tuple[DemoWall, list[WallChange]]:
+    """The same wall a while later: ``n_new`` corrosion patches appeared (cut from VT corrosion
+    images of the evaluation split not on the wall yet) and ``n_grow`` corrosion patches grew
+    (pasted again ``grow`` times larger over themselves, about their centroid). Returns the
+    edited wall (its truth holds every defect) and the changes."""
+    rng = np.random.default_rng(seed)
+    img = cv2.imread(str(wall.image))
+    labels = cv2.imread(str(wall.labels), cv2.IMREAD_UNCHANGED).astype(np.uint16)
+    old_area = {k: int((labels == k).sum()) for k in range(1, int(labels.max()) + 1)}
+    truth = [(t.id, t.cls, t.source) for t in wall.truth]
+    changes: list[tuple[str, int]] = []
+    corr = [k for k, t in enumerate(wall.truth, start=1) if t.cls == "corrosion"]
+    for k in list(rng.permutation(corr))[:n_grow]:
+        ys, xs = np.nonzero(labels == k)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        patch, m = img[y0:y1, x0:x1].copy(), (labels[y0:y1, x0:x1] == k).astype(np.float32)
+        big = cv2.resize(patch, None, fx=grow, fy=grow, interpolation=cv2.INTER_LINEAR)
+        bm = cv2.resize(m, (big.shape[1], big.shape[0]), interpolation=cv2.INTER_LINEAR)
+        cy, cx = int(round(ys.mean())), int(round(xs.mean()))
+        ty, tx = cy - int(round((ys.mean() - y0) * grow)), cx - int(round((xs.mean() - x0) * grow))
+        H, W = labels.shape
+        sy0, sx0 = max(0, -ty), max(0, -tx)
+        ty0, tx0 = max(0, ty), max(0, tx)
+        ty1, tx1 = min(H, ty + big.shape[0]), min(W, tx + big.shape[1])
+        big, bm = big[sy0:sy0 + ty1 - ty0, sx0:sx0 + tx1 - tx0], bm[sy0:sy0 + ty1 - ty0, sx0:sx0 + tx1 - tx0]
+        a = cv2.GaussianBlur(bm, (0, 0), 1.0)[:, :, None]
+        roi = img[ty0:ty1, tx0:tx1].astype(np.float32)
+        img[ty0:ty1, tx0:tx1] = (a * big + (1 - a) * roi).astype(np.uint8)
+        sub = labels[ty0:ty1, tx0:tx1]
+        sub[(bm > 0.5) & ((sub == 0) | (sub == k))] = k
+        changes.append(("grown", int(k)))
+    from inspect_pipe.saliency_defects import labelled_set
+
+    used = {t.source for t in wall.truth}
+    items = [it for it in labelled_set(data / "defects" / "vt_corrosion_cs", split="eval") if f"vt_corrosion_cs/{it.stem}" not in used]
+    rng.shuffle(items)
+    occupied = cv2.dilate((labels > 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    margin = int(0.12 / wall.m_per_px)
+    added = 0
+    for it in items:
+        if added >= n_new:
+            break
+        src, gt = it.load()
+        if src.ndim != 3:
+            continue
+        comps = [c for c in _components(gt, 1500) if c.mean() < 0.35]
+        if not comps:
+            continue
+        comp = max(comps, key=lambda c: c.sum())
+        ys, xs = np.nonzero(comp)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        size = rng.uniform(0.10, 0.22) / wall.m_per_px
+        sc = size / max(y1 - y0, x1 - x0)
+        patch = cv2.resize(src[y0:y1, x0:x1], None, fx=sc, fy=sc, interpolation=cv2.INTER_AREA)
+        pm = cv2.resize(comp[y0:y1, x0:x1].astype(np.float32), (patch.shape[1], patch.shape[0]), interpolation=cv2.INTER_LINEAR)
+        at = _place(occupied, patch.shape[0], patch.shape[1], rng, margin)
+        if at is None:
+            continue
+        y, x = at
+        a = cv2.GaussianBlur(pm, (0, 0), 1.0)[:, :, None]
+        roi = img[y:y + patch.shape[0], x:x + patch.shape[1]].astype(np.float32)
+        img[y:y + patch.shape[0], x:x + patch.shape[1]] = (a * patch + (1 - a) * roi).astype(np.uint8)
+        truth.append((f"T{len(truth) + 1:02d}", "corrosion", f"vt_corrosion_cs/{it.stem}"))
+        labels[y:y + patch.shape[0], x:x + patch.shape[1]][pm > 0.5] = len(truth)
+        changes.append(("new", len(truth)))
+        added += 1
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    new_wall = _finish(out_dir, img, labels, truth, wall.m_per_px, wall.origin_uv, wall.source + f"; edited: {len(changes)} changes")
+    by_id = {t.id: t for t in new_wall.truth}
+    out = []
+    for kind, k in changes:
+        t = by_id[f"T{k:02d}"]
+        out.append(WallChange(kind, t.id, t.centroid_wall_m, old_area.get(k, 0) * wall.m_per_px ** 2 if kind == "grown" else 0.0, t.area_m2))
+    return new_wall, out
+
+
 def _shipped_wall(out_dir: Path, *, m_per_px: float, origin_uv) -> DemoWall:
     if not SHIPPED_WALL.is_file():
         raise InputError(str(SHIPPED_WALL), "missing", "give --data ../shared/data to build the demo wall")
@@ -180,11 +272,14 @@ def _finish(out_dir, img, labels, truth, m_per_px, origin_uv, source) -> DemoWal
     return DemoWall(*paths, m_per_px, tuple(origin_uv), tuple(out), source)  # type: ignore[arg-type]
 
 
-def demo_scenario(wall: DemoWall, path: Path, *, base: Path | None = None, duration_s: float | None = None) -> Path:
-    """The inspection-sweep scenario (three lawnmower passes at 1.5 m) over ``wall``."""
+def demo_scenario(wall: DemoWall, path: Path, *, base: Path | None = None, duration_s: float | None = None, seed: int | None = None) -> Path:
+    """The inspection-sweep scenario (three lawnmower passes at 1.5 m) over ``wall``; ``seed``
+    another flight of it (sensor noise, wind: a second survey of the same wall)."""
     base = base or REPO / "scenarios" / "inspection_sweep_wall.yaml"
     doc = yaml.safe_load(base.read_text())
     doc["name"] = "demo_inspection"
+    if seed is not None:
+        doc["seed"] = int(seed)
     doc["world"]["front_wall_texture"] = {
         "image": str(wall.image.resolve()), "m_per_px": wall.m_per_px, "origin_uv": list(wall.origin_uv),
         "defects_mask": str(wall.mask.resolve()),

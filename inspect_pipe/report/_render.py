@@ -52,6 +52,7 @@ def crop_images(report, d, img: np.ndarray | None = None) -> tuple[np.ndarray, n
     s = 240 / max(crop.shape[:2])
     crop = cv2.resize(crop, (max(1, int(crop.shape[1] * s)), max(1, int(crop.shape[0] * s))),
                       interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_NEAREST)
+    scale_bar(crop, s / report.wall.m_per_px)
     ctx_half = max(3 * max(w, h), int(0.4 / report.wall.m_per_px))  # at least 0.8 m of wall around it
     cx, cy = x + w // 2, y + h // 2
     cx0, cy0, cx1, cy1 = max(0, cx - ctx_half), max(0, cy - ctx_half), min(W, cx + ctx_half), min(H, cy + ctx_half)
@@ -59,7 +60,128 @@ def crop_images(report, d, img: np.ndarray | None = None) -> tuple[np.ndarray, n
     cv2.rectangle(ctx, (x - cx0 - 4, y - cy0 - 4), (x - cx0 + w + 4, y - cy0 + h + 4), (0, 0, 255), max(2, ctx_half // 80))
     s = 240 / max(ctx.shape[:2])
     ctx = cv2.resize(ctx, (max(1, int(ctx.shape[1] * s)), max(1, int(ctx.shape[0] * s))), interpolation=cv2.INTER_AREA)
+    scale_bar(ctx, s / report.wall.m_per_px)
     return crop, ctx
+
+
+def _nice_length_m(max_m: float) -> float:
+    """The longest of 1, 2, 5 x 10^k metres not above ``max_m``."""
+    best = 0.001
+    for e in range(-3, 2):
+        for f in (1, 2, 5):
+            if f * 10.0 ** e <= max_m:
+                best = f * 10.0 ** e
+    return best
+
+
+def scale_bar(img: np.ndarray, px_per_m: float) -> np.ndarray:
+    """Draw a scale bar (a round length near a quarter of the width) in the lower-left corner."""
+    if not np.isfinite(px_per_m) or px_per_m <= 0:
+        return img
+    h, w = img.shape[:2]
+    L = _nice_length_m(0.3 * w / px_per_m)
+    n = int(round(L * px_per_m))
+    x0, y0 = 8, h - 10
+    text = f"{L * 100:g} cm" if L < 1 else f"{L:g} m"
+    cv2.rectangle(img, (x0 - 3, y0 - 17), (x0 + max(n, 60) + 3, y0 + 5), (255, 255, 255), -1)
+    cv2.line(img, (x0, y0), (x0 + n, y0), (0, 0, 0), 3)
+    for x in (x0, x0 + n):
+        cv2.line(img, (x, y0 - 5), (x, y0 + 3), (0, 0, 0), 2)
+    cv2.putText(img, text, (x0, y0 - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+class FrameCropper:
+    """Crops of a defect from the original sweep frames that saw it: among the frames whose
+    footprint holds the defect's whole box (else its centre), the ``candidates`` whose centres are
+    closest to it are cut out (undistorted, as the mosaic used them) and the sharpest by variance
+    of the Laplacian is kept."""
+
+    def __init__(self, report, candidates: int = 6, cache: int = 24) -> None:
+        from inspect_pipe.mosaic import SweepSource
+
+        from ._geo import frame_footprint_px
+
+        self.report = report
+        self.source = SweepSource(report.inputs.sweep) if report.inputs.sweep is not None else None
+        self.views = [(v, frame_footprint_px(v.H, v.size_wh)) for v in report.views]
+        self.candidates = candidates
+        self._cache: dict[int, np.ndarray | None] = {}
+        self._order: list[int] = []
+        self._size = cache
+
+    def _load(self, idx: int) -> np.ndarray | None:
+        if idx not in self._cache:
+            try:
+                img = self.source.load(idx)
+            except Exception:  # noqa: BLE001 - an unreadable frame is just not a candidate
+                img = None
+            self._cache[idx] = img
+            self._order.append(idx)
+            if len(self._order) > self._size:
+                self._cache.pop(self._order.pop(0), None)
+        return self._cache[idx]
+
+    def crop(self, d):
+        """(BGR crop with outline and scale bar, frame index, Laplacian variance, frames tried) or None."""
+        if self.source is None or not d.polygon_mosaic_px:
+            return None
+        x, y, w, h = d.bbox_mosaic_xywh
+        corners = [(x, y), (x + w, y), (x + w, y + h), (x, y + h)]
+        c = (x + w / 2, y + h / 2)
+        full, centre = [], []
+        for v, fp in self.views:
+            poly = fp.astype(np.float32).reshape(-1, 1, 2)
+            if cv2.pointPolygonTest(poly, c, False) < 0:
+                continue
+            fc = fp.mean(0)
+            dist = float(np.hypot(fc[0] - c[0], fc[1] - c[1]))
+            (full if all(cv2.pointPolygonTest(poly, (float(a), float(b)), False) >= 0 for a, b in corners) else centre).append((dist, v))
+        cands = sorted(full or centre, key=lambda t: t[0])[: self.candidates]
+        best = None
+        for _, v in cands:
+            img = self._load(v.index)
+            if img is None:
+                continue
+            Hinv = np.linalg.inv(v.H)
+            poly = cv2.perspectiveTransform(np.asarray(d.polygon_mosaic_px, np.float64).reshape(-1, 1, 2), Hinv).reshape(-1, 2)
+            bx0, by0 = poly.min(0)
+            bx1, by1 = poly.max(0)
+            m = max(16.0, 0.25 * max(bx1 - bx0, by1 - by0))
+            fh, fw = img.shape[:2]
+            X0, Y0 = int(max(0, bx0 - m)), int(max(0, by0 - m))
+            X1, Y1 = int(min(fw, bx1 + m + 1)), int(min(fh, by1 + m + 1))
+            if X1 - X0 < 8 or Y1 - Y0 < 8:
+                continue
+            patch = img[Y0:Y1, X0:X1]
+            grey = patch if patch.ndim == 2 else cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+            sharp = float(cv2.Laplacian(grey, cv2.CV_64F).var())
+            if best is None or sharp > best[2]:
+                best = (v, (X0, Y0, X1, Y1), sharp, poly)
+        if best is None:
+            return None
+        v, (X0, Y0, X1, Y1), sharp, poly = best
+        img = self._load(v.index)
+        patch = img[Y0:Y1, X0:X1].copy()
+        if patch.ndim == 2:
+            patch = cv2.cvtColor(patch, cv2.COLOR_GRAY2BGR)
+        s = 240 / max(patch.shape[:2])
+        out = cv2.resize(patch, (max(1, int(patch.shape[1] * s)), max(1, int(patch.shape[0] * s))),
+                         interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_CUBIC)
+        cv2.polylines(out, [((poly - [X0, Y0]) * s).round().astype(np.int32)], True, COLOURS.get(d.cls, (0, 0, 255)), 1, cv2.LINE_AA)
+        # frame px -> mosaic px scale at the defect (H's Jacobian), mosaic px -> metres
+        cx, cy = poly.mean(0)
+        J = _jacobian(v.H, cx, cy)
+        m_per_frame_px = self.report.wall.m_per_px * float(np.sqrt(abs(np.linalg.det(J))))
+        scale_bar(out, s / m_per_frame_px)
+        return out, v.index, sharp, len(cands)
+
+
+def _jacobian(H: np.ndarray, x: float, y: float) -> np.ndarray:
+    p = H @ np.array([x, y, 1.0])
+    w = p[2]
+    return np.array([[H[0, 0] * w - p[0] * H[2, 0], H[0, 1] * w - p[0] * H[2, 1]],
+                     [H[1, 0] * w - p[1] * H[2, 0], H[1, 1] * w - p[1] * H[2, 1]]]) / (w * w)
 
 
 def coverage_image(report, max_w: int = 900) -> np.ndarray:
@@ -129,8 +251,11 @@ def render_html(report, assets: dict) -> str:
 
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(Path(__file__).parent)), autoescape=True)
     tpl = env.get_template(TEMPLATE)
+    from ._screen import confirmation_text
+
     return tpl.render(r=report, assets=assets, frames_text=_frames_text, cov=report.coverage.to_json(),
-                      trace_json=json.dumps(report.trace, indent=1, default=str))
+                      confirmation=confirmation_text(report.params.register),
+                      trace_json=json.dumps({k: v for k, v in report.trace.items() if k not in ("screening", "precision")}, indent=1, default=str))  # both shown above the register
 
 
 def render_pdf(html: str, base: Path, path: Path) -> str | None:
@@ -158,12 +283,21 @@ def render_all(report, out: Path, *, log=print) -> dict:
     write_png(a / "coverage.png", coverage_image(report))
     defects = []
     bgr = _bgr(report.inputs.mosaic)
+    cropper = FrameCropper(report)
+    report.crop_info = {}
     for d in report.defects:
         if d.redetected and d.polygon_mosaic_px:
             crop, ctx = crop_images(report, d, bgr)
+            fc = cropper.crop(d)
+            if fc is not None:  # from the sharpest original frame that saw it
+                crop, idx, sharp, n = fc
+                report.crop_info[d.id] = {"frame": idx, "sharpness": round(sharp, 1), "of": n}
+            else:  # a folder mosaic: no frames to go back to
+                report.crop_info[d.id] = {"frame": None}
             write_png(a / "crops" / f"{d.id}.png", crop)
             write_png(a / "crops" / f"{d.id}_context.png", ctx)
-            d = d.__class__(**{**d.__dict__, "crop": f"assets/crops/{d.id}.png", "context": f"assets/crops/{d.id}_context.png"})
+            d = d.__class__(**{**d.__dict__, "crop": f"assets/crops/{d.id}.png", "context": f"assets/crops/{d.id}_context.png",
+                               "crop_frame": report.crop_info[d.id]["frame"]})
         defects.append(d)
     report.defects = defects
     reg, csv_text = register_files(report)

@@ -1,5 +1,5 @@
 """A synthetic run directory with known geometry: mosaic px -> wall m is u = 3 + 0.005 x,
-v = 3 - 0.005 y; six 200 x 150 frames on a 3 x 2 grid; a corrosion rectangle and a crack line."""
+v = 3 - 0.005 y; six 200 x 150 frames on a 3 x 2 grid; a corrosion rectangle and a meandering crack."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ W_FROM_M = [[S, 0, 3.0], [0, -S, 3.0], [0, 0, 1]]
 FRAME_WH = (200, 150)
 OFFSETS = [(x, y) for y in (0, 120) for x in (0, 160, 320)]  # mosaic 520 x 270
 CORROSION = (100, 60, 40, 20)  # x, y, w, h px -> centroid (119.5, 69.5), 800 px = 0.02 m^2
-CRACK = ((300, 200), (400, 200))  # 100 px = 0.5 m
+CRACK = ((300, 200), (325, 195), (350, 203), (375, 197), (400, 202))  # a meandering crack, about 103 px = 0.52 m (a straight line this long would be a seam)
 
 
 def make_run(root: Path, *, survey: dict | None = None) -> RunStore:
@@ -56,7 +56,7 @@ def make_run(root: Path, *, survey: dict | None = None) -> RunStore:
     x, y, w, h = CORROSION
     corr[y:y + h, x:x + w] = 255
     crack = np.zeros((270, 520), np.uint8)
-    cv2.line(crack, CRACK[0], CRACK[1], 255, 1)  # 5 mm wide
+    cv2.polylines(crack, [np.array(CRACK, np.int32)], False, 255, 1)  # 5 mm wide
     store.save_class_map("mosaic", "corrosion", "mask", corr)
     store.save_class_map("mosaic", "corrosion", "prob", np.where(corr > 0, 240, 10).astype(np.uint8))
     store.save_class_map("mosaic", "crack", "mask", crack)
