@@ -52,23 +52,27 @@ def _fly_sweep(tmp_path: Path, wall: str) -> Path:
     return sweep
 
 
-def _wall_error_m(sweep_dir: Path, out: Path) -> tuple[float, int]:
-    """Largest distance between where the mosaic's wall map puts each placed frame's centre and
-    the wall point the simulator's truth homography shows there."""
+def _wall_errors(sweep_dir: Path, out: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) wall (u, v) where the mosaic's wall map puts each placed frame's centre, and the
+    (N, 2) wall point the simulator's truth homography shows there."""
     sweep = read_sweep(sweep_dir)
     doc = json.loads((out / "mosaic.json").read_text())
     W = np.array(doc["wall_from_mosaic"])
     K = sweep.meta.K
     c = np.array([K[0, 2], K[1, 2], 1.0])
     by_name = {f.image: f for f in sweep.frames}
-    errs = []
+    found, true = [], []
     for fr in doc["frames"]:
-        f = by_name[fr["file"]] if fr["file"] in by_name else sweep.frames[int(fr.get("index", -1))]
+        f = by_name[fr["file"]]
         m = np.array(fr["H"]) @ c
         w = W @ (m / m[2])
         t = np.linalg.inv(f.truth.H_wall_m_to_frame) @ c
-        errs.append(float(np.linalg.norm(w[:2] / w[2] - t[:2] / t[2])))
-    return max(errs), len(errs)
+        found.append(w[:2] / w[2])
+        true.append(t[:2] / t[2])
+    return np.array(found), np.array(true)
+
+
+PLAN_WALL = {"left": "port_side_shell", "back": "aft_transverse_bulkhead"}
 
 
 @pytest.mark.slow
@@ -81,9 +85,24 @@ def test_sweep_of_any_wall_is_placed_in_that_walls_frame(tmp_path, wall):
     # WHEN it is mosaicked
     run_mosaic_sweep(sweep, tmp_path / "mosaic")
     # THEN every placed frame's centre lies within 5 cm of the wall point the truth shows
-    err, n = _wall_error_m(sweep, tmp_path / "mosaic")
-    assert n >= 40
+    found, true = _wall_errors(sweep, tmp_path / "mosaic")
+    assert len(found) >= 40
+    err = np.linalg.norm(found - true, axis=1).max()
     assert err <= 0.05, f"{wall}: {err:.3f} m"
+    # AND in ship terms: on the side shell the frame number (0.8 m spacing), on the bulkhead the
+    # distance from the centreline, agree with the truth's within 5 cm
+    doc = yaml.safe_load(PLAN)
+    doc["wall"] = PLAN_WALL[wall]
+    plan = parse_survey_plan(doc, "plan.yaml")
+    frame = plan_wall_frame(plan)
+    for f_uv, t_uv in zip(found, true):
+        a, b = locate(plan, frame, tuple(f_uv)), locate(plan, frame, tuple(t_uv))
+        if wall == "left":
+            assert abs(a.frame - b.frame) * 0.8 <= 0.05
+        else:
+            signed = lambda loc: loc.from_centreline_m * (1 if loc.side == "port" else -1)  # noqa: E731
+            assert abs(signed(a) - signed(b)) <= 0.05
+        assert abs(a.above_tank_top_m - b.above_tank_top_m) <= 0.05
 
 
 PLAN = """
