@@ -5,13 +5,31 @@ PY     := $(VENV)/bin/python
 DATA   ?= ../shared/data
 OUT    ?= out
 
-.PHONY: install test demo bench clean chromium pdfdeps
+EXTRAS := test,base,mavlink,browser-test,report,dask,campaign
 
-$(VENV)/.installed: pyproject.toml
+.PHONY: install test demo bench clean chromium pdfdeps lock lock-upgrade
+
+# pyproject.toml gives compatible ranges (installable beside other packages); requirements.lock pins
+# every package of those extras, with hashes, for reproducible installs. The project itself goes
+# in after, without touching the locked set.
+$(VENV)/.installed: pyproject.toml requirements.lock
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,base,mavlink,browser-test,report,dask,campaign]' --config-settings editable_mode=compat
+	$(PY) -m pip install -q -r requirements.lock
+	$(PY) -m pip install -q --no-deps -e '.[$(EXTRAS)]' --config-settings editable_mode=compat
 	touch $@
+
+# Regenerate requirements.lock after a change of pyproject.toml's dependencies: versions already
+# locked are kept (lock-upgrade takes the newest within the ranges).
+lock:
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q 'pip-tools>=7.6,<8'
+	$(VENV)/bin/pip-compile --quiet --extra $(EXTRAS) --generate-hashes --strip-extras --no-emit-index-url \
+	  --no-emit-find-links --output-file requirements.lock pyproject.toml
+
+lock-upgrade:
+	rm -f requirements.lock
+	$(MAKE) lock
 
 # The browser test drives Debian's Chromium (never a downloaded browser). Installed when apt can;
 # otherwise that one test skips with the reason and the target still succeeds.
