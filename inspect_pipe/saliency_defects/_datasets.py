@@ -40,6 +40,8 @@ class LabelledImage:
     stem: str
     image_path: Path
     load: Callable[[], tuple[np.ndarray, np.ndarray]]
+    #: (H, W) uint8 condition states (0 good, 1 fair, 2 poor, 3 severe), for sets that label them
+    load_states: Callable[[], np.ndarray] | None = None
 
 
 def _read(path: Path, flags: int) -> np.ndarray:
@@ -66,6 +68,20 @@ def _crackforest(root: Path) -> list[LabelledImage]:
     return items
 
 
+#: VT corrosion mask colours (BGR as read by OpenCV) -> condition state (its SOURCE.md):
+#: fair (surface rust), poor (pack rust, pitting), severe (section loss); black is good.
+VT_STATE_BGR = {1: (0, 0, 128), 2: (0, 128, 0), 3: (0, 128, 128)}
+CONDITION_STATES = ("none", "fair", "poor", "severe")
+
+
+def condition_states(mask_bgr: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 condition state of a VT colour mask: 0 good, 1 fair, 2 poor, 3 severe."""
+    out = np.zeros(mask_bgr.shape[:2], np.uint8)
+    for state, bgr in VT_STATE_BGR.items():
+        out[(mask_bgr == np.asarray(bgr, np.uint8)).all(-1)] = state
+    return out
+
+
 def _vt(root: Path) -> list[LabelledImage]:
     items = []
     for p in sorted((root / "images").glob("*.jpeg")):
@@ -76,7 +92,10 @@ def _vt(root: Path) -> list[LabelledImage]:
         def load(p=p, m=m):
             return _read(p, cv2.IMREAD_COLOR), _read(m, cv2.IMREAD_GRAYSCALE) > 0
 
-        items.append(LabelledImage("vt_corrosion_cs", p.stem, p, load))
+        def load_states(m=m):
+            return condition_states(_read(m, cv2.IMREAD_COLOR))
+
+        items.append(LabelledImage("vt_corrosion_cs", p.stem, p, load, load_states))
     return items
 
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ._core import TILE_PX, decide_u8, tiles, to_u8
 from ._features import ALIGN, SUPPORT_PX, FeatureStack, check_image, compute_features
 from ._model import (
     ClassModel,
@@ -17,12 +18,16 @@ from ._model import (
     to_full_res,
 )
 
-#: Default tile core size (px, a multiple of ALIGN). A tile of 768 + 2 x 448 px holds the crack
-#: class's 7 full-resolution float32 maps, corrosion's 22 at half resolution and the shared
-#: pyramids at once: a few hundred MB, independent of the image size.
-TILE_PX = 768
+#: Default tile core size: the core's TILE_PX (768 px, a multiple of ALIGN). A tile of 768 + 2 x
+#: 448 px holds the crack class's 7 full-resolution float32 maps, corrosion's 22 at half
+#: resolution and the shared pyramids at once: a few hundred MB, independent of the image size.
 #: Images of at most this many tile areas are processed whole (see class_probabilities_u8).
 WHOLE_TILES = 5.5
+
+
+#: Condition states of corrosion (AASHTO, as labelled in the VT corrosion set); the severity map
+#: holds 0 (no corrosion) or 1 + the index here.
+SEVERITY_STATES = ("fair", "poor", "severe")
 
 
 @dataclass(frozen=True)
@@ -34,26 +39,44 @@ class Region:
     area_px: int
     confidence: float  # mean defect probability over the region's pixels, 0..1
     bbox_xywh: tuple[int, int, int, int]
+    #: Corrosion regions of an engine with a condition-state head (onnx, fused): the share of the
+    #: region's pixels in each state, fair / poor / severe; None otherwise (saliency engine, cracks).
+    state_fractions: tuple[float, float, float] | None = None
+
+    @property
+    def severity(self) -> str | None:
+        """The region's condition state: the state of most of its pixels (fair | poor | severe)."""
+        if self.state_fractions is None:
+            return None
+        return SEVERITY_STATES[int(np.argmax(self.state_fractions))]
 
     def to_json(self) -> dict:
-        return {
+        doc = {
             "class": self.cls,
             "polygon_px": [list(p) for p in self.polygon_px],
             "area_px": self.area_px,
             "confidence": round(self.confidence, 4),
             "bbox_xywh": list(self.bbox_xywh),
         }
+        if self.state_fractions is not None:
+            doc["severity"] = {"state": self.severity,
+                               "fractions": {k: round(float(v), 4) for k, v in zip(SEVERITY_STATES, self.state_fractions)}}
+        return doc
 
 
 @dataclass(frozen=True)
 class Detection:
     """Result for one image. ``prob``: (H, W) uint8, 0..255 = P(defect of any requested class),
-    the largest of the class maps; ``mask``: (H, W) bool, union of the class decisions."""
+    the largest of the class maps; ``mask``: (H, W) bool, union of the class decisions;
+    ``severity``: (H, W) uint8 condition state of the decided corrosion pixels (0 none, 1 fair,
+    2 poor, 3 severe), None when the engine has no condition-state head or corrosion was not
+    asked for."""
 
     prob: np.ndarray
     mask: np.ndarray
     class_probs: dict[str, np.ndarray]
     regions: tuple[Region, ...]
+    severity: np.ndarray | None = None
 
 
 def _margin_px(model: DefectModel, kinds) -> int:
@@ -89,10 +112,6 @@ def class_probabilities(image: np.ndarray, model: DefectModel, kinds, *, naive: 
     return {k: sigmoid(zs[k]) for k in kinds}
 
 
-def _to_u8(p: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(p * np.float32(255)), 0, 255).astype(np.uint8)
-
-
 def class_probabilities_u8(
     image: np.ndarray, model: DefectModel, kinds, *, tile_px: int = TILE_PX
 ) -> dict[str, np.ndarray]:
@@ -106,44 +125,32 @@ def class_probabilities_u8(
     # tiles cost their margins (2-4x the pixels at 768 px), so a frame up to WHOLE_TILES tile
     # areas (3 Mpx at the default) is processed at once: ~0.5 GB, still bounded
     if h * w <= WHOLE_TILES * tile_px * tile_px:
-        return {k: _to_u8(p) for k, p in class_probabilities(image, model, kinds).items()}
+        return {k: to_u8(p) for k, p in class_probabilities(image, model, kinds).items()}
     m = _margin_px(model, kinds)
     out = {k: np.zeros((h, w), np.uint8) for k in kinds}
-    for y0 in range(0, h, tile_px):
-        for x0 in range(0, w, tile_px):
-            y1, x1 = min(y0 + tile_px, h), min(x0 + tile_px, w)
-            ty0, tx0 = max(y0 - m, 0), max(x0 - m, 0)
-            ty1, tx1 = min(y1 + m, h), min(x1 + m, w)
-            tile = np.ascontiguousarray(image[ty0:ty1, tx0:tx1])
-            probs = class_probabilities(tile, model, kinds)
-            for k, p in probs.items():
-                out[k][y0:y1, x0:x1] = _to_u8(p[y0 - ty0 : y1 - ty0, x0 - tx0 : x1 - tx0])
-            del probs, tile
+    for (y0, y1, x0, x1), (ty0, ty1, tx0, tx1) in tiles(h, w, tile_px, m):
+        tile = np.ascontiguousarray(image[ty0:ty1, tx0:tx1])
+        probs = class_probabilities(tile, model, kinds)
+        for k, p in probs.items():
+            out[k][y0:y1, x0:x1] = to_u8(p[y0 - ty0 : y1 - ty0, x0 - tx0 : x1 - tx0])
+        del probs, tile
     return out
 
 
 def decide(prob_u8: np.ndarray, cm: ClassModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Decision mask of one class: hysteresis (pixels >= low threshold 8-connected to a pixel >=
-    the threshold), then connected components below ``min_area_px`` removed.
+    """Decision mask of one class: the core's :func:`decide_u8` with hysteresis (pixels >= the
+    low threshold 8-connected to a pixel >= the threshold), components below ``min_area_px``
+    removed.
 
     Returns (mask bool, labels int32, stats, kept label ids)."""
     hi = int(np.ceil(cm.threshold * 255))
-    lo = min(int(np.ceil(cm.low_threshold * 255)), hi)
-    cand = (prob_u8 >= lo).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8, ltype=cv2.CV_32S)
-    del cand
-    if lo < hi:
-        keep = np.bincount(labels[prob_u8 >= hi], minlength=n) > 0
-    else:
-        keep = np.ones(n, bool)
-    keep[0] = False
-    keep &= stats[:, cv2.CC_STAT_AREA] >= cm.min_area_px
-    mask = keep[labels]
-    return mask, labels, stats, np.flatnonzero(keep)
+    return decide_u8(prob_u8, hi, cm.min_area_px, int(np.ceil(cm.low_threshold * 255)))
 
 
-def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids) -> list[Region]:
-    """One :class:`Region` per kept component id."""
+def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids,
+               states: np.ndarray | None = None) -> list[Region]:
+    """One :class:`Region` per kept component id; with ``states`` (a condition-state map, 1..3 on
+    the region's pixels) each region gets the share of each state."""
     regions = []
     if len(ids) == 0:
         return regions
@@ -166,7 +173,11 @@ def regions_of(cls: str, prob_u8: np.ndarray, labels: np.ndarray, stats: np.ndar
         poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2).tolist()
         total = float(sums[i]) if sums is not None else float(prob_u8[y : y + h, x : x + w][inside].sum(dtype=np.int64))
         conf = total / (area * 255.0)
-        regions.append(Region(cls, tuple((a, b) for a, b in poly), area, conf, (x, y, w, h)))
+        fr = None
+        if states is not None:
+            n = np.bincount(states[y : y + h, x : x + w][inside], minlength=4)[1:4].astype(np.float64)
+            fr = tuple(float(v) for v in n / max(n.sum(), 1))
+        regions.append(Region(cls, tuple((a, b) for a, b in poly), area, conf, (x, y, w, h), fr))
     return regions
 
 

@@ -21,12 +21,13 @@ import numpy as np
 
 from inspect_pipe.errors import InputError
 
+from ._core import TILE_PX
 from ._detect import Detection
 
 ENGINES = ("saliency", "onnx", "fused")
-#: What ``inspect-pipe detect``, ``run`` and ``demo`` use without ``--engine``: the network beats
-#: the saliency engine at the operating point on all three evaluation sets
-#: (docs/benchmarks/detect_onnx.md), the condition issue 9 set for it to become the default.
+#: What ``inspect-pipe detect``, ``run`` and ``demo`` use without ``--engine``: chosen on the
+#: VALIDATION images, never on eval (``_fused.default_engine_on_validation``: the fastest engine
+#: whose mean validation figure is within 0.01 of the best; a test checks the two agree).
 DEFAULT_ENGINE = "onnx"
 #: Model file suffix of each engine (``--model``): a file of another engine's kind is named as such.
 SUFFIX = {"saliency": ".npz", "onnx": ".onnx", "fused": ".json"}
@@ -65,12 +66,12 @@ class DetectorEngine:
         """ValueError for an image :meth:`detect_batch` cannot take (checked before a batch is
         formed, so one bad frame does not fail the others)."""
 
-    def detect(self, image: np.ndarray, *, kinds, tile_px: int = 768) -> Detection:
+    def detect(self, image: np.ndarray, *, kinds, tile_px: int = TILE_PX) -> Detection:
         """Probability maps, decision and regions of one 8-bit BGR (or grey) image. ValueError
         for an unusable image."""
         raise NotImplementedError
 
-    def detect_batch(self, images: list[np.ndarray], *, kinds, tile_px: int = 768) -> list[Detection]:
+    def detect_batch(self, images: list[np.ndarray], *, kinds, tile_px: int = TILE_PX) -> list[Detection]:
         return [self.detect(im, kinds=kinds, tile_px=tile_px) for im in images]
 
     def decide(self, prob_u8: np.ndarray, cls: str) -> np.ndarray:
@@ -83,7 +84,7 @@ class DetectorEngine:
 
 
 class _Saliency(DetectorEngine):
-    def detect(self, image, *, kinds, tile_px=768):
+    def detect(self, image, *, kinds, tile_px=TILE_PX):
         from ._detect import detect
 
         return detect(image, self.model, kinds=tuple(kinds), tile_px=tile_px)
@@ -106,20 +107,20 @@ class _Onnx(DetectorEngine):
 
         _check(image)
 
-    def detect(self, image, *, kinds, tile_px=768):
+    def detect(self, image, *, kinds, tile_px=TILE_PX):
         from ._onnx_detect import detect_onnx
 
         return detect_onnx(image, self.model, kinds=tuple(kinds), tile_px=tile_px)
 
-    def detect_batch(self, images, *, kinds, tile_px=768):
+    def detect_batch(self, images, *, kinds, tile_px=TILE_PX):
         from ._onnx_detect import detect_onnx_batch
 
         return detect_onnx_batch(images, self.model, kinds=tuple(kinds), batch=self.batch, tile_px=tile_px)
 
     def decide(self, prob_u8, cls):
-        from ._onnx_detect import _decide
+        from ._core import decide_u8
 
-        return _decide(prob_u8, self.model.thresholds_u8[cls], self.model.min_area_px[cls])[0]
+        return decide_u8(prob_u8, self.model.thresholds_u8[cls], self.model.min_area_px[cls])[0]
 
     def model_doc(self, kinds):
         m = self.model
@@ -135,12 +136,12 @@ class _Fused(_Onnx):
     def classes(self):
         return tuple(self.model.weights)
 
-    def detect(self, image, *, kinds, tile_px=768):
+    def detect(self, image, *, kinds, tile_px=TILE_PX):
         from ._fused import detect_fused
 
         return detect_fused(image, self.model, kinds=tuple(kinds), tile_px=tile_px)
 
-    def detect_batch(self, images, *, kinds, tile_px=768):
+    def detect_batch(self, images, *, kinds, tile_px=TILE_PX):
         return [self.detect(im, kinds=kinds, tile_px=tile_px) for im in images]
 
     def model_doc(self, kinds):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._core import OPERATING_RANGE_U8, SET_OF_CLASS, TILE_PX, decide_u8
 from ._detect import Detection, class_probabilities_u8
 from ._model import DefectModel, load_model
 from ._onnx_detect import (
@@ -30,17 +31,15 @@ from ._onnx_detect import (
     TOL_PX,
     OnnxModel,
     _check,
-    _decide,
     _detection,
     load_onnx_model,
+    onnx_maps,
     onnx_probabilities_u8,
 )
 
 FUSED_FORMAT = "inspect_pipe.defect_fused/1"
 CLASSES = ("corrosion", "crack", "surface")
 WEIGHT_GRID = tuple(round(0.1 * i, 1) for i in range(11))
-#: Data set of each class (the fit reads its validation images).
-SET_OF_CLASS = {"crack": "crackforest", "corrosion": "vt_corrosion_cs", "surface": "sd_saliency_900"}
 #: What a class's weight is chosen by on the validation images: F at the operating point (2 px
 #: tolerance for cracks, strict pixels for corrosion) or, for the steel-surface salient-object
 #: protocol, max F-beta (beta^2 = 0.3). The threshold is the best-F level of the fused map.
@@ -122,20 +121,27 @@ def _check_kinds(model: FusedModel, kinds) -> None:
             raise ValueError(f"fused parameters have no class {k!r} (have {', '.join(model.weights)})")
 
 
-def fused_probabilities_u8(image: np.ndarray, model: FusedModel, kinds, *, tile_px: int = 768) -> dict[str, np.ndarray]:
-    """Per-class fused maps (uint8). Both engines tile large images their own way, with tiles of
-    ``tile_px`` (a multiple of 64) and their own overlaps."""
+def fused_maps(image: np.ndarray, model: FusedModel, kinds, *, tile_px: int = TILE_PX):
+    """(per-class fused maps (uint8), the network's condition-state map or None). Both engines
+    tile large images on the core's grid, with tiles of ``tile_px`` and their own overlaps."""
     _check_kinds(model, kinds)
     _check(image)
     ps = class_probabilities_u8(image, model.saliency, kinds, tile_px=tile_px)
-    po = onnx_probabilities_u8(image, model.onnx, kinds=kinds, tile_px=tile_px)
-    return {k: fuse_u8(ps[k], po[k], model.weights[k]) for k in kinds}
+    po, states = onnx_maps(image, model.onnx, kinds=kinds, tile_px=tile_px)
+    return {k: fuse_u8(ps[k], po[k], model.weights[k]) for k in kinds}, states
 
 
-def detect_fused(image: np.ndarray, model: FusedModel, *, kinds=("corrosion", "crack"), tile_px: int = 768) -> Detection:
-    """Like :func:`detect`, on the fused maps. Raises ValueError for an unusable image (the
-    saliency engine's rules: colour needed for corrosion; the network's: sides >= 32 px)."""
-    return _detection(fused_probabilities_u8(image, model, kinds, tile_px=tile_px), model, kinds)
+def fused_probabilities_u8(image: np.ndarray, model: FusedModel, kinds, *, tile_px: int = TILE_PX) -> dict[str, np.ndarray]:
+    """Per-class fused maps (uint8), see :func:`fused_maps`."""
+    return fused_maps(image, model, kinds, tile_px=tile_px)[0]
+
+
+def detect_fused(image: np.ndarray, model: FusedModel, *, kinds=("corrosion", "crack"), tile_px: int = TILE_PX) -> Detection:
+    """Like :func:`detect`, on the fused maps; decided corrosion pixels get the network's
+    condition state. Raises ValueError for an unusable image (the saliency engine's rules:
+    colour needed for corrosion; the network's: sides >= 32 px)."""
+    probs, states = fused_maps(image, model, kinds, tile_px=tile_px)
+    return _detection(probs, model, kinds, states)
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -173,10 +179,10 @@ def score_weight(maps, cls: str, w: float, threshold_u8: int | None = None) -> d
             pr, rc, _ = saliency_curves(f, gt)
             P.append(pr)
             R.append(rc)
-    best, t = best_f(sums)
+    best, t = best_f(sums, *OPERATING_RANGE_U8)
     t = t if threshold_u8 is None else threshold_u8
     for f, (_, _, gt) in zip(fused, maps):
-        m = _decide(f, t, MIN_AREA_PX[cls])[0]
+        m = decide_u8(f, t, MIN_AREA_PX[cls])[0]
         c = tolerance_counts(m.astype(np.uint8) * 255, gt, tol)
         op = c if op is None else op + c
     out = {"best_F": round(best, 4), "threshold_u8": int(t), "F": round(float(op.prf()[2][255]), 4)}
@@ -223,6 +229,34 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
                     "onnx": {"file": op.name, "sha256": sha256_of(op)}},
         "classes": classes,
     }
+
+
+#: Engines from the fastest to the slowest (measured per 752 x 480 frame, docs/detect_onnx.md).
+SPEED_ORDER = ("onnx", "saliency", "fused")
+#: The default engine is the fastest whose mean validation figure is within this of the best.
+DEFAULT_MARGIN = 0.01
+
+
+def validation_scores(params: dict) -> dict[str, dict[str, float]]:
+    """Each engine's validation figure per class (``CRITERION``), read from a fitted parameter
+    file: the network alone is weight 0, saliency alone weight 1, fused the fitted weight."""
+    out: dict[str, dict[str, float]] = {"onnx": {}, "saliency": {}, "fused": {}}
+    for cls, c in params["classes"].items():
+        key, bw = c["criterion"], c["validation"]["by_weight"]
+        out["onnx"][cls] = float(bw["0.0"][key])
+        out["saliency"][cls] = float(bw["1.0"][key])
+        out["fused"][cls] = float(bw[f"{float(c['weight_saliency']):.1f}"][key])
+    return out
+
+
+def default_engine_on_validation(params: dict, margin: float = DEFAULT_MARGIN) -> str:
+    """The engine ``inspect-pipe detect`` should use by default, chosen on the validation images
+    only: the fastest (``SPEED_ORDER``) whose mean validation figure over the classes is within
+    ``margin`` of the best engine's."""
+    scores = validation_scores(params)
+    mean = {e: float(np.mean(list(v.values()))) for e, v in scores.items()}
+    best = max(mean.values())
+    return next(e for e in SPEED_ORDER if mean[e] >= best - margin)
 
 
 def main(argv=None) -> None:

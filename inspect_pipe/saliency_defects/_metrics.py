@@ -11,13 +11,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ._core import to_u8  # noqa: F401  (the one uint8 conversion, re-exported for the benches)
+
 LEVELS = 256
-
-
-def to_u8(prob: np.ndarray) -> np.ndarray:
-    if prob.dtype == np.uint8:
-        return prob
-    return np.clip(np.rint(prob * 255.0), 0, 255).astype(np.uint8)
 
 
 def _disc(radius: float) -> np.ndarray:
@@ -90,10 +86,11 @@ def mask_prf(mask: np.ndarray, gt: np.ndarray, tol: float = 0.0) -> tuple[float,
     return float(p[255]), float(r[255]), float(f[255])
 
 
-def best_f(counts: ToleranceCounts) -> tuple[float, int]:
-    """(max F, threshold level 1..255 achieving it): the ODS figure when counts are summed."""
+def best_f(counts: ToleranceCounts, lo: int = 1, hi: int = 255) -> tuple[float, int]:
+    """(max F, threshold level lo..hi achieving it): with the full range 1..255, the ODS figure
+    when counts are summed; operating points use the core's OPERATING_RANGE_U8."""
     _, _, f = counts.prf()
-    t = int(np.argmax(f[1:]) + 1)
+    t = int(np.argmax(f[lo:hi + 1]) + lo)
     return float(f[t]), t
 
 
@@ -126,3 +123,17 @@ def max_fbeta(precisions: list[np.ndarray], recalls: list[np.ndarray], beta2: fl
     r = np.mean(recalls, axis=0)
     f = (1 + beta2) * p * r / np.maximum(beta2 * p + r, 1e-12)
     return float(f.max())
+
+
+def state_confusion(pred: np.ndarray, gt: np.ndarray, n_states: int = 4) -> np.ndarray:
+    """(n_states, n_states) pixel counts, rows the true condition state, columns the predicted
+    one (0 none / good, 1 fair, 2 poor, 3 severe); summable over images."""
+    idx = gt.astype(np.int64).ravel() * n_states + pred.astype(np.int64).ravel()
+    return np.bincount(idx, minlength=n_states * n_states)[: n_states * n_states].reshape(n_states, n_states)
+
+
+def state_f1(conf: np.ndarray) -> np.ndarray:
+    """Per-pixel F1 of each state from a confusion matrix (index 0 is 'none')."""
+    tp = np.diag(conf).astype(np.float64)
+    denom = conf.sum(0) + conf.sum(1)
+    return np.where(denom > 0, 2 * tp / np.maximum(denom, 1), 0.0)

@@ -15,7 +15,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._detect import Detection, Region, regions_of
+from ._core import TILE_PX, decide_u8, tiles, to_u8
+from ._detect import SEVERITY_STATES, Detection, Region, regions_of
 from ._features import check_image
 
 ONNX_FORMAT = "inspect_pipe.defect_onnx/1"
@@ -36,9 +37,8 @@ LICENCE = (
     "condition state set: CC0 per its repository, unconfirmed; SD-saliency-900: research use). "
     "Research and evaluation use only."
 )
-#: Tiling: core tile side and overlap margin (px, multiples of MULTIPLE_OF); the margin covers
-#: most of the network's receptive field (~150 px), so tiles agree with whole-image inference.
-TILE_PX = 512
+#: Tiling (the core's grid and its TILE_PX): overlap margin (px, a multiple of MULTIPLE_OF); it
+#: covers most of the network's receptive field, so tiles agree with whole-image inference.
 MARGIN_PX = 96
 #: Images up to this many pixels run in one pass.
 WHOLE_MAX_PX = 2048 * 1536
@@ -52,6 +52,8 @@ class OnnxModel:
     classes: tuple[str, ...]
     thresholds_u8: dict[str, int]
     min_area_px: dict[str, int]
+    #: Name of the condition-state output (logits of fair / poor / severe), None without one.
+    severity_output: str | None = None
 
     @property
     def version(self) -> str:
@@ -98,13 +100,23 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
     if len(ins) != 1 or len(ins[0].shape) != 4 or ins[0].shape[1] != 3 or ins[0].name != inp.get("name"):
         raise ValueError(f"ONNX model input {[(i.name, i.shape) for i in ins]} does not match its metadata")
     classes = tuple(meta.get("classes", ()))
-    if not classes or len(outs) != 1 or len(outs[0].shape) != 4 or outs[0].shape[1] != len(classes):
-        raise ValueError(f"ONNX model output {[(o.name, o.shape) for o in outs]} does not match classes {classes}")
+    sev = meta.get("severity")
+    want = {meta.get("output", {}).get("name", "prob"): len(classes)}
+    if sev is not None:
+        if not isinstance(sev, dict) or tuple(sev.get("states", ())) != SEVERITY_STATES:
+            raise ValueError(f"ONNX model metadata: severity states must be {', '.join(SEVERITY_STATES)}")
+        want[sev.get("output")] = len(SEVERITY_STATES)
+    got = {o.name: o.shape for o in outs}
+    if not classes or len(outs) != len(want) or outs[0].name not in want or \
+            any(k not in got or len(got[k]) != 4 or got[k][1] != n for k, n in want.items()):
+        raise ValueError(f"ONNX model output {[(o.name, o.shape) for o in outs]} does not match classes {classes}"
+                         + (" and the severity states" if sev is not None else ""))
     ops = meta.get("operating_points_u8", {})
     if set(ops) != set(classes):
         raise ValueError("ONNX model metadata: operating points do not cover its classes")
     return OnnxModel(path, sess, meta, classes, {k: int(v) for k, v in ops.items()},
-                     {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes})
+                     {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes},
+                     sev.get("output") if sev is not None else None)
 
 
 def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
@@ -129,30 +141,41 @@ def _stride(model: OnnxModel) -> int:
     return int(model.meta.get("output", {}).get("stride", 1))
 
 
-def _run(model: OnnxModel, xs: np.ndarray) -> np.ndarray:
-    """(N, 3, H, W) input of any H, W -> (N, C, h, w) probabilities at the network's output
-    resolution (h = ceil(H / 16) * 16 / stride; the caller up-samples and crops with
-    :func:`_full_u8`)."""
+def _run(model: OnnxModel, xs: np.ndarray, *, severity: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N, 3, H, W) input of any H, W -> ((N, C, h, w) probabilities, (N, 3, h, w) condition-state
+    logits or None) at the network's output resolution (h = ceil(H / 16) * 16 / stride; the
+    caller up-samples and crops with :func:`_full_u8` / :func:`_full_states`). The severity
+    output is computed only when asked for and the model has one."""
     _, _, h, w = xs.shape
     ph, pw = (-h) % MULTIPLE_OF, (-w) % MULTIPLE_OF
     if ph or pw:
         xs = np.pad(xs, ((0, 0), (0, 0), (0, ph), (0, pw)), mode="reflect")
     name = model.session.get_inputs()[0].name
-    return model.session.run(None, {name: xs})[0]
+    names = [model.session.get_outputs()[0].name]
+    if severity and model.severity_output is not None:
+        names.append(model.severity_output)
+    out = model.session.run(names, {name: xs})
+    return out[0], (out[1] if len(out) > 1 else None)
+
+
+def _full_states(logits: np.ndarray, stride: int, h: int, w: int) -> np.ndarray:
+    """(3, h', w') condition-state logits at the output resolution -> (h, w) uint8 state 1..3
+    (fair, poor, severe) of every pixel: logits up-sampled bilinearly by ``stride`` (as in
+    training), then the arg-max."""
+    if stride != 1:
+        logits = np.stack([cv2.resize(c, (c.shape[1] * stride, c.shape[0] * stride), interpolation=cv2.INTER_LINEAR)
+                           for c in logits])
+    return (np.argmax(logits[:, :h, :w], axis=0) + 1).astype(np.uint8)
 
 
 def _full_u8(p: np.ndarray, stride: int, h: int, w: int) -> np.ndarray:
     """One class's output map (float 0..1 at the output resolution) -> (h, w) uint8 at the
     input resolution: rounded to 0..255, up-sampled bilinearly by ``stride`` (cv2 and the
     training graph's bilinear up-sampling agree to within one grey level), cropped."""
-    q = _u8(p)
+    q = to_u8(p)
     if stride != 1:
         q = cv2.resize(q, (q.shape[1] * stride, q.shape[0] * stride), interpolation=cv2.INTER_LINEAR)
     return q[:h, :w]
-
-
-def _u8(p: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(p * np.float32(255)), 0, 255).astype(np.uint8)
 
 
 def _check(image: np.ndarray) -> None:
@@ -162,66 +185,69 @@ def _check(image: np.ndarray) -> None:
         raise ValueError(f"image {w}x{h} is too small for the network (sides >= {MIN_SIDE_PX} px)")
 
 
-def onnx_probabilities_u8(
+def onnx_maps(
     image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX, margin_px: int = MARGIN_PX,
     whole_max_px: int = WHOLE_MAX_PX,
-) -> dict[str, np.ndarray]:
-    """Per-class probability maps (H, W) uint8 of one image (the classes ``kinds``, default all
-    of the model's). Images above ``whole_max_px`` pixels run in tiles of ``tile_px`` with
-    ``margin_px`` overlap on each side (tile origins on the 16 px grid), so memory is bounded by
-    the tile size."""
+) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """(per-class probability maps (H, W) uint8 of the classes ``kinds`` (default all of the
+    model's), condition-state map (H, W) uint8 1..3 of every pixel or None: without a severity
+    head, or when corrosion is not asked for). Images above ``whole_max_px`` pixels run in tiles
+    of ``tile_px`` with ``margin_px`` overlap on each side (tile origins on the 16 px grid), so
+    memory is bounded by the tile size."""
     _check(image)
     if tile_px % MULTIPLE_OF or margin_px % MULTIPLE_OF:
         raise ValueError(f"tile and margin must be multiples of {MULTIPLE_OF} px")
     want = [(i, k) for i, k in enumerate(model.classes) if kinds is None or k in kinds]
+    sev = model.severity_output is not None and any(k == "corrosion" for _, k in want)
     h, w = image.shape[:2]
     s = _stride(model)
     if h * w <= whole_max_px:
-        p = _run(model, _prepare(image, model.meta)[None])[0]
-        return {k: _full_u8(p[i], s, h, w) for i, k in want}
+        p, z = _run(model, _prepare(image, model.meta)[None], severity=sev)
+        return {k: _full_u8(p[0, i], s, h, w) for i, k in want}, (_full_states(z[0], s, h, w) if sev else None)
     out = {k: np.zeros((h, w), np.uint8) for _, k in want}
-    for y0 in range(0, h, tile_px):
-        for x0 in range(0, w, tile_px):
-            y1, x1 = min(y0 + tile_px, h), min(x0 + tile_px, w)
-            ty0, tx0 = max(y0 - margin_px, 0), max(x0 - margin_px, 0)
-            ty1, tx1 = min(y1 + margin_px, h), min(x1 + margin_px, w)
-            p = _run(model, _prepare(np.ascontiguousarray(image[ty0:ty1, tx0:tx1]), model.meta)[None])[0]
-            for i, k in want:
-                q = _full_u8(p[i], s, ty1 - ty0, tx1 - tx0)
-                out[k][y0:y1, x0:x1] = q[y0 - ty0:y1 - ty0, x0 - tx0:x1 - tx0]
-    return out
+    states = np.zeros((h, w), np.uint8) if sev else None
+    for (y0, y1, x0, x1), (ty0, ty1, tx0, tx1) in tiles(h, w, tile_px, margin_px):
+        p, z = _run(model, _prepare(np.ascontiguousarray(image[ty0:ty1, tx0:tx1]), model.meta)[None], severity=sev)
+        core = (slice(y0 - ty0, y1 - ty0), slice(x0 - tx0, x1 - tx0))
+        for i, k in want:
+            out[k][y0:y1, x0:x1] = _full_u8(p[0, i], s, ty1 - ty0, tx1 - tx0)[core]
+        if sev:
+            states[y0:y1, x0:x1] = _full_states(z[0], s, ty1 - ty0, tx1 - tx0)[core]
+    return out, states
 
 
-def _decide(prob_u8: np.ndarray, threshold_u8: int, min_area_px: int):
-    """(mask of prob >= threshold without components below min_area_px, labels, stats, kept ids).
-    Few small components are cleared inside their boxes; many, with one look-up of the labels."""
-    binary = cv2.threshold(np.ascontiguousarray(prob_u8, np.uint8), int(threshold_u8) - 1, 1, cv2.THRESH_BINARY)[1]
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
-    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
-    keep[0] = False
-    drop = np.flatnonzero(~keep[1:]) + 1
-    if len(drop) > 64:
-        return keep[labels], labels, stats, np.flatnonzero(keep)
-    mask = binary.view(bool)
-    for i in drop:
-        x, y, w, h = (int(v) for v in stats[i, :4])
-        box = mask[y:y + h, x:x + w]
-        box[labels[y:y + h, x:x + w] == i] = False
-    return mask, labels, stats, np.flatnonzero(keep)
+def onnx_probabilities_u8(image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX,
+                          margin_px: int = MARGIN_PX, whole_max_px: int = WHOLE_MAX_PX) -> dict[str, np.ndarray]:
+    """The per-class maps of :func:`onnx_maps` (no condition states)."""
+    want = tuple(k for k in model.classes if kinds is None or k in kinds)
+    m = model if model.severity_output is None else _no_severity(model)
+    return onnx_maps(image, m, kinds=want, tile_px=tile_px, margin_px=margin_px, whole_max_px=whole_max_px)[0]
 
 
-def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds) -> Detection:
+def _no_severity(model: OnnxModel) -> OnnxModel:
+    import dataclasses
+
+    return dataclasses.replace(model, severity_output=None)
+
+
+def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds, states: np.ndarray | None = None) -> Detection:
     """Decision, regions and the combined map from per-class maps; ``model`` gives per-class
-    ``thresholds_u8`` and ``min_area_px`` (the onnx model or the fused parameters)."""
+    ``thresholds_u8`` and ``min_area_px`` (the onnx model or the fused parameters). With
+    ``states`` (condition state 1..3 of every pixel) the decided corrosion pixels get their state
+    in ``Detection.severity`` and corrosion regions their state fractions."""
     h, w = next(iter(probs.values())).shape
     mask = np.zeros((h, w), bool)
     regions: list[Region] = []
+    severity = None
     for k in kinds:
-        m, labels, stats, ids = _decide(probs[k], model.thresholds_u8[k], model.min_area_px[k])
+        m, labels, stats, ids = decide_u8(probs[k], model.thresholds_u8[k], model.min_area_px[k])
         mask |= m
-        regions += regions_of(k, probs[k], labels, stats, ids)
+        st = states if k == "corrosion" else None
+        if st is not None:
+            severity = np.where(m, st, 0).astype(np.uint8)
+        regions += regions_of(k, probs[k], labels, stats, ids, st)
     prob = probs[kinds[0]].copy() if len(kinds) == 1 else np.maximum.reduce([probs[k] for k in kinds])
-    return Detection(prob, mask, {k: probs[k] for k in kinds}, tuple(regions))
+    return Detection(prob, mask, {k: probs[k] for k in kinds}, tuple(regions), severity)
 
 
 def _check_kinds(model: OnnxModel, kinds) -> None:
@@ -234,7 +260,8 @@ def detect_onnx(image: np.ndarray, model: OnnxModel, *, kinds=("corrosion", "cra
     """Like :func:`detect` of the saliency engine, with the learned network. Grey images are
     accepted for every class (replicated to RGB). Raises ValueError for an unusable image."""
     _check_kinds(model, kinds)
-    return _detection(onnx_probabilities_u8(image, model, kinds=kinds, tile_px=tile_px), model, kinds)
+    probs, states = onnx_maps(image, model, kinds=kinds, tile_px=tile_px)
+    return _detection(probs, model, kinds, states)
 
 
 def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("corrosion", "crack"),
@@ -254,11 +281,13 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
     for idx in groups.values():
         for s in range(0, len(idx), batch):
             part = idx[s:s + batch]
-            p = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]))
+            sev = model.severity_output is not None and "corrosion" in kinds
+            p, z = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]), severity=sev)
             h, w = images[part[0]].shape[:2]
+            s = _stride(model)
             for j, i in enumerate(part):
-                out[i] = _detection({k: _full_u8(p[j, c], _stride(model), h, w) for c, k in enumerate(model.classes)
-                                     if k in kinds}, model, kinds)
+                out[i] = _detection({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds},
+                                    model, kinds, _full_states(z[j], s, h, w) if sev else None)
     return out  # type: ignore[return-value]
 
 

