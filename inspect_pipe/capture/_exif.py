@@ -2,7 +2,10 @@
 packet with the sweep-specific fields (frame index, capture time, intrinsics). No GPS: there is no
 GPS in a cargo hold and we do not invent one.
 
-PNG gets ``eXIf`` and ``iTXt XML:com.adobe.xmp`` chunks after IHDR; JPEG gets two APP1 segments.
+Pillow writes the EXIF block and reads both back (``Image.getexif()``, ``im.info["XML:com.adobe.xmp"]``
+or ``im.getxmp()``). The image itself is encoded by OpenCV (faster, and the writer's adaptive PNG
+levels); the two blocks go into that stream as PNG ``eXIf`` and ``iTXt XML:com.adobe.xmp`` chunks
+after IHDR, or as two JPEG APP1 segments, without re-encoding the pixels.
 """
 
 from __future__ import annotations
@@ -11,11 +14,19 @@ import struct
 import zlib
 from dataclasses import dataclass
 from fractions import Fraction
-from xml.sax.saxutils import escape
+from xml.etree import ElementTree as ET
 
-__all__ = ["ImageMeta", "embed", "exif_tiff", "xmp_packet"]
+from PIL import ExifTags, Image
+from PIL.TiffImagePlugin import IFDRational
 
-_ASCII, _LONG, _RATIONAL = 2, 4, 5
+__all__ = ["ImageMeta", "XMP_NS", "embed", "exif_tiff", "xmp_packet"]
+
+XMP_NS = "https://inspect-pipe.invalid/ns/capture/1/"  # the ip: prefix of the sweep fields
+_RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
+_X = "adobe:ns:meta/"
+ET.register_namespace("x", _X)
+ET.register_namespace("rdf", _RDF)
+ET.register_namespace("ip", XMP_NS)
 
 
 @dataclass(frozen=True)
@@ -30,69 +41,36 @@ class ImageMeta:
     xmp: dict  # flat key -> scalar, written as ip:key attributes
 
 
-def _ifd(entries: list[tuple[int, int, object]], base: int) -> tuple[bytes, int]:
-    """Big-endian IFD at offset ``base``; returns its bytes (with its data area) and where the
-    next-IFD pointer sits (relative to ``base``)."""
-    entries = sorted(entries, key=lambda e: e[0])
-    n = len(entries)
-    head = struct.pack(">H", n)
-    data = b""
-    data_off = base + 2 + 12 * n + 4
-    body = b""
-    for tag, typ, val in entries:
-        if typ == _ASCII:
-            raw = str(val).encode("ascii", "replace") + b"\0"
-            count = len(raw)
-        elif typ == _LONG:
-            raw, count = struct.pack(">I", int(val)), 1
-        elif typ == _RATIONAL:
-            fr = Fraction(float(val)).limit_denominator(1_000_000)
-            raw, count = struct.pack(">II", fr.numerator, fr.denominator), 1
-        else:  # pragma: no cover - only the types above are used
-            raise ValueError(typ)
-        if len(raw) <= 4:
-            field = raw.ljust(4, b"\0")
-        else:
-            field = struct.pack(">I", data_off + len(data))
-            data += raw + (b"\0" if len(raw) % 2 else b"")
-        body += struct.pack(">HHI", tag, typ, count) + field
-    return head + body + b"\0\0\0\0" + data, 2 + 12 * n
-
-
 def exif_tiff(m: ImageMeta) -> bytes:
+    """The EXIF block (a TIFF stream, no ``Exif\\0\\0`` header) written by Pillow: IFD0 with make,
+    model, software and time; the Exif IFD with exposure, original time (with sub-seconds and
+    the UTC offset) and the image size."""
     dt = m.datetime_utc[:19].replace("-", ":").replace("T", " ")
     subsec = m.datetime_utc[20:26] if len(m.datetime_utc) > 20 else "0"
-    exif_entries = [
-        (0x829A, _RATIONAL, max(m.exposure_s, 1e-6)),  # ExposureTime
-        (0x9003, _ASCII, dt),  # DateTimeOriginal
-        (0x9291, _ASCII, subsec),  # SubSecTimeOriginal
-        (0x9011, _ASCII, "+00:00"),  # OffsetTimeOriginal
-        (0xA002, _LONG, m.width),
-        (0xA003, _LONG, m.height),
-    ]
-    ifd0_entries: list[tuple[int, int, object]] = [
-        (0x010F, _ASCII, m.make),
-        (0x0110, _ASCII, m.model),
-        (0x0131, _ASCII, m.software),
-        (0x0132, _ASCII, dt),
-        (0x8769, _LONG, 0),  # ExifIFD pointer, patched below
-    ]
-    ifd0, _ = _ifd(ifd0_entries, 8)
-    exif_off = 8 + len(ifd0)
-    ifd0_entries[-1] = (0x8769, _LONG, exif_off)
-    ifd0, _ = _ifd(ifd0_entries, 8)
-    exif, _ = _ifd(exif_entries, exif_off)
-    return b"MM\x00\x2a" + struct.pack(">I", 8) + ifd0 + exif
+    exif = Image.Exif()
+    exif[ExifTags.Base.Make] = m.make
+    exif[ExifTags.Base.Model] = m.model
+    exif[ExifTags.Base.Software] = m.software
+    exif[ExifTags.Base.DateTime] = dt
+    exif[ExifTags.IFD.Exif] = {
+        ExifTags.Base.ExposureTime: IFDRational(Fraction(max(m.exposure_s, 1e-6)).limit_denominator(1_000_000)),
+        ExifTags.Base.DateTimeOriginal: dt,
+        ExifTags.Base.SubsecTimeOriginal: subsec,
+        ExifTags.Base.OffsetTimeOriginal: "+00:00",
+        ExifTags.Base.ExifImageWidth: int(m.width),
+        ExifTags.Base.ExifImageHeight: int(m.height),
+    }
+    raw = exif.tobytes()
+    return raw[6:] if raw.startswith(b"Exif\0\0") else raw
 
 
 def xmp_packet(fields: dict) -> bytes:
-    attrs = "".join(f'\n    ip:{k}="{escape(str(v), {chr(34): "&quot;"})}"' for k, v in fields.items())
-    return (
-        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
-        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
-        f'  <rdf:Description rdf:about="" xmlns:ip="https://inspect-pipe.invalid/ns/capture/1/"{attrs}/>\n'
-        "</rdf:RDF></x:xmpmeta>\n<?xpacket end=\"w\"?>"
-    ).encode("utf-8")
+    """An XMP packet whose one rdf:Description carries ``fields`` as ip:KEY attributes."""
+    meta = ET.Element(f"{{{_X}}}xmpmeta")
+    rdf = ET.SubElement(meta, f"{{{_RDF}}}RDF")
+    ET.SubElement(rdf, f"{{{_RDF}}}Description", {f"{{{_RDF}}}about": "", **{f"{{{XMP_NS}}}{k}": str(v) for k, v in fields.items()}})
+    body = ET.tostring(meta, encoding="unicode")
+    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n' + body + '\n<?xpacket end="w"?>').encode("utf-8")
 
 
 def _png_chunk(kind: bytes, data: bytes) -> bytes:

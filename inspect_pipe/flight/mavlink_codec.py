@@ -40,68 +40,10 @@ __all__ = [
 
 G = 9.81
 
-# SET_POSITION_TARGET_LOCAL_NED type_mask: ignore position (1|2|4), acceleration (64|128|256)
-# and yaw (1024): velocity and yaw rate only.
-VELOCITY_ONLY_MASK = 1 | 2 | 4 | 64 | 128 | 256 | 1024
-
-MAV_FRAME_LOCAL_NED = 1
-MAV_TYPE_QUADROTOR = 2
-MAV_TYPE_GCS = 6
-MAV_TYPE_ONBOARD_CONTROLLER = 18
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-MAV_AUTOPILOT_INVALID = 8
-MAV_AUTOPILOT_PX4 = 12
-MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MAV_MODE_FLAG_SAFETY_ARMED = 128
-MAV_STATE_STANDBY = 3
-MAV_STATE_ACTIVE = 4
-MAV_CMD_NAV_LAND = 21
-MAV_CMD_NAV_TAKEOFF = 22
-MAV_CMD_DO_SET_MODE = 176
-MAV_CMD_COMPONENT_ARM_DISARM = 400
-MAV_CMD_SET_MESSAGE_INTERVAL = 511
-MAV_RESULT_ACCEPTED = 0
-MAV_RESULT_TEMPORARILY_REJECTED = 1
-MAV_RESULT_DENIED = 2
-MAV_RESULT_UNSUPPORTED = 3
-MAV_RESULT_FAILED = 4
-MAV_DISTANCE_SENSOR_LASER = 0
-MAV_DISTANCE_SENSOR_ULTRASOUND = 1
-MAV_SENSOR_ROTATION_NONE = 0  # forward
-MAV_SENSOR_ROTATION_YAW_90 = 2  # right
-MAV_SENSOR_ROTATION_YAW_270 = 6  # left
-MAV_SENSOR_ROTATION_PITCH_270 = 25  # down
-MAV_DISTANCE_SENSOR_ULTRASOUND_OBSTACLE = 1  # OBSTACLE_DISTANCE sensor_type
-MAV_FRAME_BODY_FRD = 12
-
 
 class Autopilot(str, enum.Enum):
     PX4 = "px4"  # offboard mode
     ARDUPILOT = "ardupilot"  # guided mode (ArduCopter)
-
-
-class LandedState(enum.IntEnum):
-    """MAV_LANDED_STATE of EXTENDED_SYS_STATE."""
-
-    UNDEFINED = 0
-    ON_GROUND = 1
-    IN_AIR = 2
-    TAKEOFF = 3
-    LANDING = 4
-
-
-class Px4Mode(enum.IntEnum):
-    """PX4 main modes (custom_mode bits 16..23; AUTO sub-modes in bits 24..31)."""
-
-    MANUAL = 1
-    ALTCTL = 2
-    POSCTL = 3
-    AUTO = 4
-    OFFBOARD = 6
-
-
-PX4_AUTO_LOITER = 3
-PX4_AUTO_LAND = 6
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
@@ -112,14 +54,55 @@ def px4_main_mode(custom_mode: int) -> int:
     return (custom_mode >> 16) & 0xFF
 
 
-class ArduCopterMode(enum.IntEnum):
-    STABILIZE = 0
-    ALT_HOLD = 2
-    AUTO = 3
-    GUIDED = 4
-    LOITER = 5
-    LAND = 9
-    BRAKE = 17
+# MAVLink's enums and the autopilots' mode tables come from pymavlink (the ``common`` dialect and
+# ``mavutil``), resolved on first use so that the pure conversions of this module need no
+# pymavlink: ``mc.MAV_CMD_NAV_LAND``, ``mc.MAV_RESULT_ACCEPTED`` ... are ``common``'s constants;
+# ``Px4Mode`` (PX4 main modes, custom_mode bits 16..23), ``PX4_AUTO_*`` (AUTO sub-modes, bits
+# 24..31), ``ArduCopterMode`` (mavutil.mode_mapping_acm) and ``LandedState`` (MAV_LANDED_STATE)
+# are built from them. Without pymavlink, using one is a one-line error saying how to install it.
+
+
+def _common():
+    from inspect_pipe.flight.mavlink_endpoint import require_pymavlink
+
+    return require_pymavlink("mavlink")
+
+
+def _mavutil():
+    _common()  # the one-line error when pymavlink is missing
+    from pymavlink import mavutil
+
+    return mavutil
+
+
+def _build(name: str):
+    if name.startswith("MAV_"):
+        return getattr(_common(), name)
+    if name == "Px4Mode":
+        prefix = "PX4_CUSTOM_MAIN_MODE_"
+        mu = _mavutil()
+        return enum.IntEnum(name, {k[len(prefix):]: getattr(mu, k) for k in dir(mu) if k.startswith(prefix)})
+    if name.startswith("PX4_AUTO_"):
+        return getattr(_mavutil(), "PX4_CUSTOM_SUB_MODE_AUTO_" + name[len("PX4_AUTO_"):])
+    if name == "ArduCopterMode":
+        return enum.IntEnum(name, {mode: number for number, mode in sorted(_mavutil().mode_mapping_acm.items())})
+    if name == "LandedState":
+        entries = _common().enums["MAV_LANDED_STATE"]
+        return enum.IntEnum(name, {e.name[len("MAV_LANDED_STATE_"):]: v for v, e in sorted(entries.items()) if not e.name.endswith("_ENUM_END")})
+    if name == "VELOCITY_ONLY_MASK":  # SET_POSITION_TARGET_LOCAL_NED: velocity and yaw rate only
+        c = _common()
+        return (c.POSITION_TARGET_TYPEMASK_X_IGNORE | c.POSITION_TARGET_TYPEMASK_Y_IGNORE | c.POSITION_TARGET_TYPEMASK_Z_IGNORE
+                | c.POSITION_TARGET_TYPEMASK_AX_IGNORE | c.POSITION_TARGET_TYPEMASK_AY_IGNORE | c.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+                | c.POSITION_TARGET_TYPEMASK_YAW_IGNORE)
+    if name == "DISTANCE_SENSORS":
+        return _distance_sensors()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __getattr__(name: str):
+    value = _build(name)
+    globals()[name] = value  # once: later look-ups are plain module attributes
+    return value
 
 
 class DistanceSlot(str, enum.Enum):
@@ -132,24 +115,29 @@ class DistanceSlot(str, enum.Enum):
     RIGHT_SONAR = "right_sonar"
 
 
-# (sensor id, type, orientation, min cm, max cm) the simulated vehicle sends for each slot.
-DISTANCE_SENSORS: dict[DistanceSlot, tuple[int, int, int, int, int]] = {
-    DistanceSlot.BOTTOM_SONAR: (0, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_PITCH_270, 30, 500),
-    DistanceSlot.BOTTOM_TOF: (1, MAV_DISTANCE_SENSOR_LASER, MAV_SENSOR_ROTATION_PITCH_270, 20, 1400),
-    DistanceSlot.FRONT_SONAR: (2, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_NONE, 30, 500),
-    DistanceSlot.LEFT_SONAR: (3, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_YAW_270, 30, 500),
-    DistanceSlot.RIGHT_SONAR: (4, MAV_DISTANCE_SENSOR_ULTRASOUND, MAV_SENSOR_ROTATION_YAW_90, 30, 500),
-}
+def _distance_sensors() -> dict[DistanceSlot, tuple[int, int, int, int, int]]:
+    """(sensor id, type, orientation, min cm, max cm) the simulated vehicle sends for each slot;
+    ``mc.DISTANCE_SENSORS``."""
+    c = _common()
+    sonar, laser = c.MAV_DISTANCE_SENSOR_ULTRASOUND, c.MAV_DISTANCE_SENSOR_LASER
+    return {
+        DistanceSlot.BOTTOM_SONAR: (0, sonar, c.MAV_SENSOR_ROTATION_PITCH_270, 30, 500),
+        DistanceSlot.BOTTOM_TOF: (1, laser, c.MAV_SENSOR_ROTATION_PITCH_270, 20, 1400),
+        DistanceSlot.FRONT_SONAR: (2, sonar, c.MAV_SENSOR_ROTATION_NONE, 30, 500),
+        DistanceSlot.LEFT_SONAR: (3, sonar, c.MAV_SENSOR_ROTATION_YAW_270, 30, 500),
+        DistanceSlot.RIGHT_SONAR: (4, sonar, c.MAV_SENSOR_ROTATION_YAW_90, 30, 500),
+    }
 
 
 def distance_slot(sensor_type: int, orientation: int) -> DistanceSlot | None:
     """The slot a DISTANCE_SENSOR fills, by where it looks (ids differ between autopilots)."""
-    if orientation == MAV_SENSOR_ROTATION_PITCH_270:
-        return DistanceSlot.BOTTOM_TOF if sensor_type == MAV_DISTANCE_SENSOR_LASER else DistanceSlot.BOTTOM_SONAR
+    c = _common()
+    if orientation == c.MAV_SENSOR_ROTATION_PITCH_270:
+        return DistanceSlot.BOTTOM_TOF if sensor_type == c.MAV_DISTANCE_SENSOR_LASER else DistanceSlot.BOTTOM_SONAR
     return {
-        MAV_SENSOR_ROTATION_NONE: DistanceSlot.FRONT_SONAR,
-        MAV_SENSOR_ROTATION_YAW_270: DistanceSlot.LEFT_SONAR,
-        MAV_SENSOR_ROTATION_YAW_90: DistanceSlot.RIGHT_SONAR,
+        c.MAV_SENSOR_ROTATION_NONE: DistanceSlot.FRONT_SONAR,
+        c.MAV_SENSOR_ROTATION_YAW_270: DistanceSlot.LEFT_SONAR,
+        c.MAV_SENSOR_ROTATION_YAW_90: DistanceSlot.RIGHT_SONAR,
     }.get(orientation)
 
 

@@ -39,7 +39,6 @@ from inspect_pipe.flight_stack.onboard import TickOutput
 
 __all__ = ["CommandFailed", "LinkStatus", "MavlinkLink", "MavlinkPlant", "parse_vehicle_url"]
 
-COMPANION_COMPONENT_ID = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
 
 
 class CommandFailed(RuntimeError):
@@ -78,7 +77,7 @@ class MavlinkLink:
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.link_timeout_s = link_timeout_s
         self.ep = MavlinkEndpoint(
-            url, system_id=system_id, component_id=COMPANION_COMPONENT_ID,
+            url, system_id=system_id, component_id=mc.MAV_COMP_ID_ONBOARD_COMPUTER,
             accept_heartbeat=lambda m: m.type not in (mc.MAV_TYPE_GCS, mc.MAV_TYPE_ONBOARD_CONTROLLER)
             and m.autopilot != mc.MAV_AUTOPILOT_INVALID,
         )
@@ -231,7 +230,7 @@ class MavlinkLink:
         dist = [65535] * 72
         for ang, d in ((0, clearance.front_m), (90, clearance.right_m), (270, clearance.left_m)):
             dist[ang // 5] = 501 if d is None else max(30, min(500, int(d * 100)))
-        self.ep.send(self.C.MAVLink_obstacle_distance_message(int(self.clock() * 1e6), mc.MAV_DISTANCE_SENSOR_ULTRASOUND_OBSTACLE,
+        self.ep.send(self.C.MAVLink_obstacle_distance_message(int(self.clock() * 1e6), mc.MAV_DISTANCE_SENSOR_ULTRASOUND,
                                                               dist, 5, 30, 500, 5.0, 0.0, mc.MAV_FRAME_BODY_FRD))
 
     def command(self, command: int, *params: float, timeout_s: float = 1.5, retries: int = 2) -> int:
