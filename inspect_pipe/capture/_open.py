@@ -22,7 +22,7 @@ def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: f
 
         if not arg:
             raise InputError(spec, "no device", "e.g. v4l2:/dev/video0")
-        return V4L2Source(arg, clock=clock, fps=rate_hz, exposure_s=exposure_s), clock, "host_monotonic_s"
+        return V4L2Source(arg, clock=clock, rate_hz=rate_hz, exposure_s=exposure_s), clock, "host_monotonic_s"  # camera at its own rate, decimated
     if kind == "ids":
         from inspect_pipe.capture.sources.ids import open_ids
 
