@@ -1,34 +1,53 @@
-"""Global alignment: every frame-to-mosaic homography refined jointly over all matched pairs.
+"""Global alignment: all frames of a group placed jointly over every matched pair.
 
-Unknowns: one homography per frame (8 parameters, h33 = 1), in normalised coordinates (frame
-pixels centred and divided by half the frame's larger side; mosaic pixels divided by the same).
-Residuals: for each inlier correspondence (p in frame i, q in frame j), ``H_i p - H_j q`` in the
-mosaic. Pairwise constraints leave the mosaic free up to one global homography; eight gauge rows
-pin it so the mosaic neither drifts nor shrinks: the frames' mean perspective, shear and
-anisotropy are zero, their mean rotation is zero, their mean scale is one (mosaic pixels are
-frame pixels) and their mean translation stays where the initial layout put it. A weak prior on
-each frame's perspective keeps a frame with a thin overlap from tilting freely.
+Two frame models share one solver:
 
-The solver is Levenberg-Marquardt on the sparse normal equations (scipy.sparse); the Jacobian is
-analytic and has 10 non-zeros per row.
+- ``pose`` (the default when a group has >= 5 frames): each frame is a camera pose relative to the
+  wall plane with shared intrinsics, ``H_i = K [r1 r2 t_i]`` (wall -> image). Six parameters a frame
+  (a rotation update and the translation), plus the shared focal length when it is not given and
+  radial distortion ``k1, k2`` when no calibration is given. Each frame then keeps the shape a
+  pinhole camera over a plane can give it, so errors cannot accumulate into shear or anisotropy
+  along the sweep the way free homographies drift.
+- ``homography``: a free 8-parameter homography a frame, kept where the pose model fails.
+
+Residuals are in image space, by pairwise transfer through the plane: each inlier correspondence
+(p in frame i, q in frame j) gives ``transfer_i->j(p) - q`` and ``transfer_j->i(q) - p`` in pixels.
+Transfer was chosen over wall points as parameters because it leaves only the camera parameters
+(6 a frame) as unknowns: the trust-region steps are solved over ~1k unknowns instead of ~50k, and
+nothing has to be triangulated first. The solver is ``scipy.optimize.least_squares`` (trust region
+reflective, sparse Jacobian, ``x_scale='jac'``, Huber loss at 1 px so a false match costs linearly).
+The Jacobian is built by forward differences done per frame role, vectorised over all
+correspondences (a row depends on two frames and the intrinsics only), and handed over as a sparse
+matrix with exactly that pattern.
+
+Gauge: image residuals do not see a similarity of the wall plane (pose model: the reference
+frame's in-plane rotation and translation are held) or any homography of the mosaic (homography
+model: the reference frame's homography is held). The result is then expressed in mosaic pixels of
+the frames' mean scale, centred where the initial layout put the reference frame.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-DEBUG = False
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+from scipy.optimize import least_squares
 
 
 @dataclass(frozen=True)
 class AlignParams:
     points_per_pair: int = 40
-    iterations: int = 15
-    perspective_prior: float = 0.1  # normalised perspective that costs as much as 1 px of residual
-    outlier_px: float = 3.0  # correspondences further apart than this after a first solve are dropped
+    loss: str = "huber"  # robust loss of scipy's least_squares
+    loss_scale_px: float = 1.0  # residuals beyond this cost linearly
+    max_nfev: int = 20
+    outlier_px: float = 3.0  # correspondences further off after alignment count as outliers in rms_px
+    pose_model: bool = True  # try the pose model (falls back to free homographies where it fails)
+    pose_min_frames: int = 5
+    pose_slack_px: float = 0.5  # the pose model is kept if its RMS is within this of the free model's
+    focal_range: tuple[float, float] = (0.3, 6.0)  # plausible focal lengths, in frame larger sides
+    pose_points_per_pair: int = 12  # correspondences a pair in the pose adjustment (6 unknowns a frame)
+    distortion: bool = True  # refine k1, k2 when no calibration is given
 
 
 @dataclass(frozen=True)
@@ -40,173 +59,464 @@ class Correspondences:
     p: np.ndarray  # (N, 2)
     q: np.ndarray  # (N, 2)
 
+    def within(self, frames) -> "Correspondences":
+        keep = np.isin(self.fi, list(frames)) & np.isin(self.fj, list(frames))
+        return Correspondences(self.fi[keep], self.fj[keep], self.p[keep], self.q[keep])
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole with radial distortion (Brown, k1 k2) in pixels."""
+
+    f: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.f, 0, self.cx], [0, self.f, self.cy], [0, 0, 1.0]])
+
+    def max_distortion_px(self, size_wh: tuple[int, int]) -> float:
+        """How far the distortion moves the frame's farthest corner."""
+        r2 = (max(self.cx, size_wh[0] - self.cx) ** 2 + max(self.cy, size_wh[1] - self.cy) ** 2) / self.f**2
+        return float(abs(self.k1 * r2 + self.k2 * r2 * r2) * np.sqrt(r2) * self.f)
+
+
+IDENTITY_CAMERA = Camera(1.0, 0.0, 0.0)
+
 
 @dataclass(frozen=True)
 class AlignResult:
-    H: dict[int, np.ndarray]  # frame -> 3x3, frame pixels -> mosaic pixels (before the canvas offset)
-    rms_px: float
+    H: dict[int, np.ndarray]  # frame -> 3x3, frame pixels (undistorted with ``camera``) -> mosaic pixels
+    rms_px: float  # RMS transfer error of the inlier correspondences (<= outlier_px), pixels
     per_pair_rms_px: dict[tuple[int, int], float]
     iterations: int
+    model: str = "homography"  # "pose" or "homography"
+    camera: Camera | None = None  # pose model: the intrinsics found (or given)
+    note: str = ""  # why the pose model was not kept, when it was tried
 
 
-def _normaliser(size_wh: tuple[int, int]) -> tuple[np.ndarray, float]:
+# ----- camera and frame models (pure, vectorised) -----
+
+
+def _undistort(xy: np.ndarray, cam: Camera) -> np.ndarray:
+    """Pixels -> normalised image coordinates, inverting the radial distortion by fixed point."""
+    m = np.stack([(xy[:, 0] - cam.cx) / cam.f, (xy[:, 1] - cam.cy) / cam.f], axis=1)
+    if cam.k1 == 0.0 and cam.k2 == 0.0:
+        return m
+    u = m
+    for _ in range(6):
+        r2 = (u * u).sum(1, keepdims=True)
+        u = m / (1 + cam.k1 * r2 + cam.k2 * r2 * r2)
+    return u
+
+
+def _distort(m: np.ndarray, cam: Camera) -> np.ndarray:
+    """Normalised image coordinates -> pixels."""
+    if cam.k1 != 0.0 or cam.k2 != 0.0:
+        r2 = (m * m).sum(1, keepdims=True)
+        m = m * (1 + cam.k1 * r2 + cam.k2 * r2 * r2)
+    return np.stack([cam.f * m[:, 0] + cam.cx, cam.f * m[:, 1] + cam.cy], axis=1)
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """(n, 3) rotation vectors -> (n, 3, 3) rotation matrices."""
+    th = np.linalg.norm(w, axis=1)
+    k = w / np.maximum(th, 1e-12)[:, None]
+    Kx = np.zeros((len(w), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
+    return np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
+
+
+def wall_to_image(model: str, P: np.ndarray, R0: np.ndarray | None) -> np.ndarray:
+    """(n, 3, 3) maps from wall (mosaic) coordinates to normalised image coordinates.
+
+    pose: ``P = [w (3), t (3)]``, ``R = R0 @ rodrigues(w)``, map ``[r1 r2 t]``;
+    homography: ``P`` holds the 8 free entries of the map (h33 = 1)."""
+    if model == "pose":
+        R = R0 @ _rodrigues(P[:, :3])
+        return np.concatenate([R[:, :, :2], P[:, 3:6, None]], axis=2)
+    return np.concatenate([P, np.ones((len(P), 1))], axis=1).reshape(-1, 3, 3)
+
+
+def _apply_rows(M: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-row 3x3 maps ``M`` (N, 3, 3) applied to homogeneous points (x, y, 1)."""
+    return (M[:, 0, 0] * x + M[:, 0, 1] * y + M[:, 0, 2], M[:, 1, 0] * x + M[:, 1, 1] * y + M[:, 1, 2],
+            M[:, 2, 0] * x + M[:, 2, 1] * y + M[:, 2, 2])
+
+
+def _transfer(Ainv_src: np.ndarray, A_dst: np.ndarray, cam: Camera, xy: np.ndarray) -> np.ndarray:
+    """Pixels of the source frame -> pixels of the destination frame, through the wall plane
+    (per-row maps ``A`` wall -> normalised image, ``Ainv`` their inverses)."""
+    m = _undistort(xy, cam)
+    X, Y, W = _apply_rows(Ainv_src, m[:, 0], m[:, 1])
+    u, v, z = _apply_rows(A_dst, X / W, Y / W)
+    return _distort(np.stack([u / z, v / z], axis=1), cam)
+
+
+def _pair_residuals(A_i, Ainv_i, A_j, Ainv_j, cam: Camera, corr: Correspondences) -> np.ndarray:
+    """(N, 4): symmetric transfer errors in pixels, i->j then j->i (per-row maps and inverses)."""
+    return np.concatenate([_transfer(Ainv_i, A_j, cam, corr.p) - corr.q, _transfer(Ainv_j, A_i, cam, corr.q) - corr.p], axis=1)
+
+
+# ----- the problem: parameter vector <-> frames and camera -----
+
+
+@dataclass(frozen=True)
+class _Problem:
+    model: str
+    frames: list[int]
+    ii: np.ndarray  # row -> frame column
+    jj: np.ndarray
+    corr: Correspondences
+    R0: np.ndarray | None
+    cam0: Camera
+    intrinsics: tuple[str, ...]  # free camera fields ("f", "k1", "k2")
+    free: np.ndarray  # bool over the full parameter vector
+
+    @property
+    def k(self) -> int:
+        return 6 if self.model == "pose" else 8
+
+    def unpack(self, x: np.ndarray, full0: np.ndarray) -> tuple[np.ndarray, Camera]:
+        full = full0.copy()
+        full[self.free] = x
+        n = len(self.frames)
+        P = full[: n * self.k].reshape(n, self.k)
+        vals = dict(zip(self.intrinsics, full[n * self.k :]))
+        cam = Camera(vals.get("f", self.cam0.f), self.cam0.cx, self.cam0.cy, vals.get("k1", self.cam0.k1), vals.get("k2", self.cam0.k2))
+        return P, cam
+
+    def residuals(self, P: np.ndarray, cam: Camera) -> np.ndarray:
+        A = wall_to_image(self.model, P, self.R0)
+        Ainv = np.linalg.inv(A)
+        return _pair_residuals(A[self.ii], Ainv[self.ii], A[self.jj], Ainv[self.jj], cam, self.corr)
+
+    def jacobian(self, P: np.ndarray, cam: Camera, r0: np.ndarray) -> sp.csr_matrix:
+        """Forward differences per frame role (a row depends on frames i, j and the camera only)."""
+        n, k, N = len(self.frames), self.k, len(self.ii)
+        A = wall_to_image(self.model, P, self.R0)
+        Ainv = np.linalg.inv(A)
+        Ai, Aj, Ai_inv, Aj_inv = A[self.ii], A[self.jj], Ainv[self.ii], Ainv[self.jj]
+        rows = np.arange(4 * N).reshape(N, 4)
+        data, rr, cc = [], [], []
+        for c in range(k):
+            h = 1e-7 * max(1.0, float(np.abs(P[:, c]).max()))
+            Pp = P.copy()
+            Pp[:, c] += h
+            Ap = wall_to_image(self.model, Pp, self.R0)
+            Ap_inv = np.linalg.inv(Ap)
+            for role, idx in ((0, self.ii), (1, self.jj)):
+                if role == 0:
+                    r = _pair_residuals(Ap[self.ii], Ap_inv[self.ii], Aj, Aj_inv, cam, self.corr)
+                else:
+                    r = _pair_residuals(Ai, Ai_inv, Ap[self.jj], Ap_inv[self.jj], cam, self.corr)
+                data.append(((r - r0) / h).ravel())
+                rr.append(rows.ravel())
+                cc.append(np.repeat(idx * k + c, 4))
+        for m, name in enumerate(self.intrinsics):
+            val = getattr(cam, name)
+            h = 1e-6 * max(1.0, abs(val)) if name == "f" else 1e-7
+            camp = Camera(**{**cam.__dict__, name: val + h})
+            r = _pair_residuals(Ai, Ai_inv, Aj, Aj_inv, camp, self.corr)
+            data.append(((r - r0) / h).ravel())
+            rr.append(rows.ravel())
+            cc.append(np.full(4 * N, n * k + m))
+        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(4 * N, n * k + len(self.intrinsics)))
+        return J[:, np.flatnonzero(self.free)]
+
+
+def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams) -> tuple[np.ndarray, Camera, int, bool]:
+    """Robust sparse least squares from ``full0``; returns (frame parameters, camera, evaluations, converged)."""
+    cache: dict = {}
+
+    def fun(x):
+        P, cam = prob.unpack(x, full0)
+        r = prob.residuals(P, cam)
+        cache["x"], cache["r"] = x.copy(), r
+        return r.ravel()
+
+    def jac(x):
+        P, cam = prob.unpack(x, full0)
+        r0 = cache["r"] if "x" in cache and np.array_equal(cache["x"], x) else prob.residuals(P, cam)
+        return prob.jacobian(P, cam, r0)
+
+    # LSMR with tight tolerances: its default ones gave inexact steps that crawled (40 evaluations
+    # without converging on a 40-frame sweep); tight, the cost settles in 2-4 steps. The cost then
+    # runs along a flat valley (focal length against mean tilt), so ftol is 1e-4.
+    sol = least_squares(fun, full0[prob.free], jac=jac, method="trf", loss=params.loss, f_scale=params.loss_scale_px,
+                        x_scale="jac", max_nfev=params.max_nfev, tr_solver="lsmr",
+                        tr_options={"atol": 1e-12, "btol": 1e-12, "regularize": False}, ftol=1e-4, xtol=1e-10, gtol=1e-10)
+    P, cam = prob.unpack(sol.x, full0)
+    return P, cam, int(sol.nfev), bool(sol.status >= 0 and np.all(np.isfinite(sol.x)))  # 0: max_nfev reached, still usable
+
+
+def _rows(frames: list[int], corr: Correspondences) -> tuple[np.ndarray, np.ndarray]:
+    col = {f: k for k, f in enumerate(frames)}
+    return np.array([col[f] for f in corr.fi], dtype=np.int64), np.array([col[f] for f in corr.fj], dtype=np.int64)
+
+
+def _reference(frames: list[int], ii: np.ndarray, jj: np.ndarray) -> int:
+    """The best-connected frame's column (it holds the gauge)."""
+    counts = np.bincount(np.r_[ii, jj], minlength=len(frames))
+    return int(np.argmax(counts))
+
+
+# ----- the two models -----
+
+
+def adjust_homographies(H0: dict[int, np.ndarray], corr: Correspondences, *, params: AlignParams = AlignParams()) -> tuple[dict[int, np.ndarray], int]:
+    """Free homographies (frame px -> mosaic px) refined jointly; the reference frame's is held."""
+    frames = sorted(H0)
+    corr = corr.within(frames)
+    ii, jj = _rows(frames, corr)
+    ref = _reference(frames, ii, jj)
+    P0 = np.array([(lambda a: (a / a[2, 2]).ravel()[:8])(np.linalg.inv(H0[f])) for f in frames])
+    free = np.ones(P0.size, dtype=bool)
+    free[ref * 8 : ref * 8 + 8] = False
+    prob = _Problem("homography", frames, ii, jj, corr, None, IDENTITY_CAMERA, (), free)
+    P, _, nfev, _ = _solve(prob, P0.ravel(), params)
+    A = wall_to_image("homography", P, None)
+    return {f: _normalised(np.linalg.inv(A[k])) for k, f in enumerate(frames)}, nfev
+
+
+def poses_from_homographies(H: dict[int, np.ndarray], K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera rotation (n, 3, 3) and translation (n, 3) of each frame from its frame -> wall
+    homography, ``K^-1 H^-1 ~ [r1 r2 t]`` (Zhang), columns made orthonormal (camera in front)."""
+    Rs, ts = [], []
+    Kinv = np.linalg.inv(K)
+    for f in sorted(H):
+        B = Kinv @ np.linalg.inv(H[f])
+        lam = 2.0 / (np.linalg.norm(B[:, 0]) + np.linalg.norm(B[:, 1]))
+        B = B * lam
+        if B[2, 2] < 0:
+            B = -B
+        r3 = np.cross(B[:, 0], B[:, 1])
+        U, _, Vt = np.linalg.svd(np.c_[B[:, 0], B[:, 1], r3 / max(np.linalg.norm(r3), 1e-12)])
+        R = U @ Vt
+        if np.linalg.det(R) < 0:
+            R = U @ np.diag([1, 1, -1]) @ Vt
+        Rs.append(R)
+        ts.append(B[:, 2])
+    return np.array(Rs), np.array(ts)
+
+
+def homographies_from_poses(model_maps: np.ndarray, K: np.ndarray) -> list[np.ndarray]:
+    """Frame px -> wall: ``(K [r1 r2 t])^-1`` for each wall -> normalised image map."""
+    return [_normalised(np.linalg.inv(K @ A)) for A in model_maps]
+
+
+def adjust_poses(
+    H0: dict[int, np.ndarray], corr: Correspondences, cam0: Camera, *, free_focal: bool, free_distortion: bool,
+    params: AlignParams = AlignParams(),
+) -> tuple[dict[int, np.ndarray], Camera, int, bool]:
+    """Pose-model bundle adjustment from homographies ``H0`` (frame px -> a metric wall frame)."""
+    frames = sorted(H0)
+    corr = corr.within(frames)
+    ii, jj = _rows(frames, corr)
+    ref = _reference(frames, ii, jj)
+    R0, t0 = poses_from_homographies(H0, cam0.K)
+    n = len(frames)
+    P0 = np.c_[np.zeros((n, 3)), t0]
+    intrinsics = (("f",) if free_focal else ()) + (("k1", "k2") if free_distortion else ())
+    full0 = np.r_[P0.ravel(), [getattr(cam0, name) for name in intrinsics]]
+    free = np.ones(full0.size, dtype=bool)
+    free[[ref * 6 + 2, ref * 6 + 3, ref * 6 + 4, ref * 6 + 5]] = False  # in-plane rotation and translation
+    prob = _Problem("pose", frames, ii, jj, corr, R0, cam0, intrinsics, free)
+    P, cam, nfev, ok = _solve(prob, full0, params)
+    A = wall_to_image("pose", P, R0)
+    H = dict(zip(frames, homographies_from_poses(A, cam.K)))
+    return H, cam, nfev, ok
+
+
+# ----- shared steps -----
+
+
+def _normalised(H: np.ndarray) -> np.ndarray:
+    return H / H[2, 2]
+
+
+def mean_scale(H: dict[int, np.ndarray], size_wh: tuple[int, int]) -> float:
+    """Mean linear scale (mosaic px per frame px) at the frame centres."""
+    c = np.array([size_wh[0] / 2, size_wh[1] / 2, 1.0])
+    out = []
+    for h in H.values():
+        w = h[2] @ c
+        J = h[:2, :2] * w - np.outer((h @ c)[:2], h[2, :2])
+        out.append(np.sqrt(abs(np.linalg.det(J))) / w**2)
+    return float(np.mean(out))
+
+
+def to_mosaic_frame(H: dict[int, np.ndarray], size_wh: tuple[int, int], anchor: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Express homographies in mosaic pixels of the frames' mean scale, with the rotation and
+    position ``anchor`` (e.g. the initial layout) gave the frames on average."""
+    s = 1.0 / mean_scale(H, size_wh)
+    c = np.array([size_wh[0] / 2, size_wh[1] / 2, 1.0])
+    frames = sorted(H)
+    X = np.array([(lambda v: v[:2] / v[2])(H[f] @ c) for f in frames]) * s
+    Y = np.array([(lambda v: v[:2] / v[2])(anchor[f] @ c) for f in frames])
+    if len(frames) >= 2:
+        U, _, Vt = np.linalg.svd((Y - Y.mean(0)).T @ (X - X.mean(0)))
+        R = U @ np.diag([1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    else:
+        R = np.eye(2)
+    t = Y.mean(0) - R @ X.mean(0)
+    S = np.array([[s * R[0, 0], s * R[0, 1], t[0]], [s * R[1, 0], s * R[1, 1], t[1]], [0, 0, 1]])
+    return {f: _normalised(S @ H[f]) for f in frames}
+
+
+def pair_errors(H: dict[int, np.ndarray], corr: Correspondences) -> np.ndarray:
+    """Per-correspondence mapping disagreement, in frame-i pixels: ``H_i^-1 H_j q - p``."""
+    corr = corr.within(H)
+    frames = sorted(H)
+    ii, jj = _rows(frames, corr)
+    Hs = np.array([H[f] for f in frames])
+    A = np.linalg.inv(Hs)  # mosaic -> frame px
+    r = _pair_residuals(A[ii], Hs[ii], A[jj], Hs[jj], IDENTITY_CAMERA, corr)
+    return np.maximum(np.hypot(r[:, 0], r[:, 1]), np.hypot(r[:, 2], r[:, 3]))
+
+
+def per_pair_rms(err: np.ndarray, corr: Correspondences) -> dict[tuple[int, int], float]:
+    keys = corr.fi.astype(np.int64) * 1_000_003 + corr.fj
+    out = {}
+    for key in np.unique(keys):
+        sel = keys == key
+        out[(int(corr.fi[sel][0]), int(corr.fj[sel][0]))] = float(np.sqrt(np.mean(err[sel] ** 2)))
+    return out
+
+
+def pose_errors(H: dict[int, np.ndarray], cam: Camera, corr: Correspondences) -> np.ndarray:
+    """Like :func:`pair_errors`, for homographies of undistorted pixels and a distorting camera."""
+    corr = corr.within(H)
+    frames = sorted(H)
+    ii, jj = _rows(frames, corr)
+    Kinv = np.linalg.inv(cam.K)
+    A = np.array([Kinv @ np.linalg.inv(H[f]) for f in frames])  # mosaic -> normalised image
+    Ainv = np.linalg.inv(A)
+    r = _pair_residuals(A[ii], Ainv[ii], A[jj], Ainv[jj], cam, corr)
+    return np.maximum(np.hypot(r[:, 0], r[:, 1]), np.hypot(r[:, 2], r[:, 3]))
+
+
+def _rms(err: np.ndarray, cut: float) -> float:
+    used = err[err <= cut]
+    return float(np.sqrt(np.mean(used**2))) if len(used) else 0.0
+
+
+def pairwise_rms(corr: Correspondences, pair_H: dict[tuple[int, int], np.ndarray]) -> float:
+    """RMS of the correspondences under their own pair homographies: what no global model can beat."""
+    err = []
+    for (i, j), H in pair_H.items():
+        sel = (corr.fi == i) & (corr.fj == j)
+        if sel.any():
+            p = np.c_[corr.p[sel], np.ones(int(sel.sum()))] @ H.T
+            err.append(np.hypot(*(p[:, :2] / p[:, 2:3] - corr.q[sel]).T))
+    return float(np.sqrt(np.mean(np.concatenate(err) ** 2))) if err else 0.0
+
+
+def thin(corr: Correspondences, per_pair: int) -> Correspondences:
+    """At most ``per_pair`` correspondences of each pair (an even stride through them)."""
+    keys = corr.fi.astype(np.int64) * 1_000_003 + corr.fj
+    order = np.argsort(keys, kind="stable")
+    _, start, count = np.unique(keys[order], return_index=True, return_counts=True)
+    pick = np.concatenate([order[s + np.unique(np.linspace(0, c - 1, min(c, per_pair)).round().astype(int))]
+                           for s, c in zip(start, count)]) if len(keys) else np.zeros(0, int)
+    pick.sort()
+    return Correspondences(corr.fi[pick], corr.fj[pick], corr.p[pick], corr.q[pick])
+
+
+def initial_focal(H0: dict[int, np.ndarray], size_wh: tuple[int, int], principal: tuple[float, float],
+                  pair_H: dict[tuple[int, int], np.ndarray], params: AlignParams) -> float:
+    """Self-calibration's starting point: OpenCV's ``estimateFocal`` on the pair homographies (it
+    assumes a rotating camera, so on a translating sweep it is only a seed) competing with a scan
+    of the metric-rectification residual of the layout."""
+    from ._rectify import estimate_focal, focal_from_layout
+
+    side = max(size_wh)
+    seed = estimate_focal(list(pair_H.values()), size_wh)
+    f, _ = focal_from_layout(H0, size_wh, principal, (params.focal_range[0] * side, params.focal_range[1] * side),
+                             seeds=(seed,) if seed else ())
+    return f
+
+
+def fit_pose_model(
+    H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], f0: float, principal: tuple[float, float],
+    *, self_calibrate: bool, params: AlignParams,
+) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool]:
+    """Rectify the layout with ``f0``, then bundle-adjust the pose model on a thinned set of
+    correspondences; returns (H, camera, errors of all correspondences, converged)."""
+    from ._rectify import rectify
+
+    H_wall, _ = rectify(H0, size_wh, f0, principal)
+    H, cam, _, ok = adjust_poses(H_wall, thin(corr, params.pose_points_per_pair), Camera(f0, *principal),
+                                 free_focal=self_calibrate, free_distortion=self_calibrate and params.distortion, params=params)
+    return H, cam, pose_errors(H, cam, corr), ok
+
+
+def quick_layout(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], *,
+                 focal_px: float | None = None, params: AlignParams = AlignParams()) -> dict[int, np.ndarray]:
+    """A cheap global layout for proposing more pairs: the pose model with a fixed focal length
+    (the given one, else a typical 1.2 frame sides), few correspondences, few iterations."""
+    if len(H0) < params.pose_min_frames:
+        return H0
     w, h = size_wh
-    s = max(w, h) / 2.0
-    T = np.array([[1 / s, 0, -w / 2 / s], [0, 1 / s, -h / 2 / s], [0, 0, 1]])
-    return T, s
+    quick = replace(params, pose_points_per_pair=6, max_nfev=5)
+    H, _, _, ok = fit_pose_model(H0, corr.within(H0), size_wh, focal_px or 1.2 * max(w, h), (w / 2, h / 2),
+                                 self_calibrate=False, params=quick)
+    return to_mosaic_frame(H, size_wh, H0) if ok else H0
 
 
-def _project(params: np.ndarray, idx: np.ndarray, pts: np.ndarray):
-    a, b, c, d, e, f, g, h = (params[idx, k] for k in range(8))
-    x, y = pts[:, 0], pts[:, 1]
-    w = g * x + h * y + 1.0
-    u = (a * x + b * y + c) / w
-    v = (d * x + e * y + f) / w
-    return u, v, w
-
-
-def _woodbury_solve(A: sp.csc_matrix, U: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve (A + U U^T) x = b with a sparse factorisation of A and a small dense correction."""
-    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
-    Ainv_b = lu.solve(b)
-    Ainv_U = lu.solve(U)
-    small = np.eye(U.shape[1]) + U.T @ Ainv_U
-    return Ainv_b - Ainv_U @ np.linalg.solve(small, U.T @ Ainv_b)
-
-
-def refine(
+def align_group(
     H0: dict[int, np.ndarray],
     corr: Correspondences,
     size_wh: tuple[int, int],
     *,
+    focal_px: float | None = None,
+    principal_px: tuple[float, float] | None = None,
+    pair_H: dict[tuple[int, int], np.ndarray] | None = None,
     params: AlignParams = AlignParams(),
 ) -> AlignResult:
-    """Jointly refine the homographies ``H0`` (frame px -> mosaic px) of one connected group."""
+    """Global alignment of one connected group from its initial layout ``H0`` (frame px -> mosaic px).
+
+    Groups of >= ``pose_min_frames`` frames get the pose model, from the layout rectified with the
+    given focal length or a self-calibrated one (:func:`initial_focal`). It is kept unless it finds
+    an implausible focal length or fits the correspondences worse than their own pair homographies
+    by more than ``pose_slack_px``. A given focal length the pose model cannot fit while a
+    self-calibrated one can is reported as contradicting the images. Otherwise the group keeps
+    free homographies, and ``note`` says why."""
     frames = sorted(H0)
-    col = {f: k for k, f in enumerate(frames)}
-    n = len(frames)
-    T, s = _normaliser(size_wh)
-    Tinv = np.linalg.inv(T)
-    M = np.diag([1 / s, 1 / s, 1.0])
-    Minv = np.diag([s, s, 1.0])
-    x = np.empty((n, 8))
-    for f, k in col.items():
-        Hn = M @ H0[f] @ Tinv
-        Hn = Hn / Hn[2, 2]
-        x[k] = Hn.ravel()[:8]
-    keep = np.isin(corr.fi, frames) & np.isin(corr.fj, frames)
-    ii = np.array([col[f] for f in corr.fi[keep]], dtype=np.int64)
-    jj = np.array([col[f] for f in corr.fj[keep]], dtype=np.int64)
-    P = (corr.p[keep] - [size_wh[0] / 2, size_wh[1] / 2]) / s
-    Q = (corr.q[keep] - [size_wh[0] / 2, size_wh[1] / 2]) / s
-    t0 = x[:, [2, 5]].mean(axis=0)
-    n_pts = len(ii)
-    gauge_w = 10.0 * np.sqrt(max(n_pts, 1))
-    prior_w = (1.0 / s) / params.perspective_prior
-
-    def residuals(xv: np.ndarray, rows_ok: np.ndarray) -> np.ndarray:
-        ui, vi, _ = _project(xv, ii[rows_ok], P[rows_ok])
-        uj, vj, _ = _project(xv, jj[rows_ok], Q[rows_ok])
-        g = _gauge(xv)
-        return np.concatenate([ui - uj, vi - vj, gauge_w * g, prior_w * xv[:, 6], prior_w * xv[:, 7]])
-
-
-    def _gauge(xv):
-        a, b, c, d, e, f, g, h = xv.T
-        return np.array([
-            g.mean(), h.mean(), (a - e).mean(), (b + d).mean(), (d - b).mean() / 2,
-            (a + e).mean() / 2 - 1.0, c.mean() - t0[0], f.mean() - t0[1],
-        ])
-
-    gauge_J = np.zeros((8, n * 8))
-    for r, coeffs in enumerate([
-        {6: 1}, {7: 1}, {0: 1, 4: -1}, {1: 1, 3: 1}, {3: 0.5, 1: -0.5}, {0: 0.5, 4: 0.5}, {2: 1}, {5: 1},
-    ]):
-        for k, v in coeffs.items():
-            gauge_J[r, np.arange(n) * 8 + k] = v / n
-    gauge_J = sp.csr_matrix(gauge_w * gauge_J)
-    prior_J = sp.vstack([
-        sp.csr_matrix((np.full(n, prior_w), (np.arange(n), np.arange(n) * 8 + 6)), shape=(n, 8 * n)),
-        sp.csr_matrix((np.full(n, prior_w), (np.arange(n), np.arange(n) * 8 + 7)), shape=(n, 8 * n)),
-    ])
-
-    def jacobian(xv: np.ndarray, rows_ok: np.ndarray) -> sp.csr_matrix:
-        blocks = []
-        m = int(rows_ok.sum())
-        rows = np.arange(m)
-        for frame_idx, pts, sign in ((ii[rows_ok], P[rows_ok], 1.0), (jj[rows_ok], Q[rows_ok], -1.0)):
-            u, v, w = _project(xv, frame_idx, pts)
-            X, Y = pts[:, 0] / w, pts[:, 1] / w
-            one = 1.0 / w
-            base = frame_idx * 8
-            # x-residual: a, b, c, g, h ; y-residual: d, e, f, g, h
-            rx = np.repeat(rows, 5)
-            cx = (base[:, None] + np.array([0, 1, 2, 6, 7])).ravel()
-            vx = np.stack([X, Y, one, -u * X, -u * Y], axis=1).ravel()
-            ry = np.repeat(rows + m, 5)
-            cy = (base[:, None] + np.array([3, 4, 5, 6, 7])).ravel()
-            vy = np.stack([X, Y, one, -v * X, -v * Y], axis=1).ravel()
-            blocks.append(sp.csr_matrix(
-                (sign * np.concatenate([vx, vy]), (np.concatenate([rx, ry]), np.concatenate([cx, cy]))),
-                shape=(2 * m, 8 * n),
-            ))
-        return sp.vstack([blocks[0] + blocks[1], prior_J]).tocsr()
-
-    rows_ok = np.ones(n_pts, dtype=bool)
-    it_total = 0
-    for stage in range(2):
-        lam = 1e-3
-        r = residuals(x, rows_ok)
-        cost = float(r @ r)
-        m2 = 2 * int(rows_ok.sum())
-        U = gauge_J.toarray().T  # (8n, 8): the gauge rows are dense, so they enter by Woodbury
-        for _ in range(params.iterations):
-            it_total += 1
-            J = jacobian(x, rows_ok)
-            JtJ = (J.T @ J).tocsc()
-            r_sparse = np.concatenate([r[:m2], r[m2 + 8:]])
-            g = J.T @ r_sparse + U @ r[m2 : m2 + 8]
-            diag = JtJ.diagonal() + (U * U).sum(axis=1)
-            improved = False
-            for _try in range(8):
-                A = (JtJ + sp.diags(lam * np.maximum(diag, 1e-12))).tocsc()
-                step = _woodbury_solve(A, U, -g)
-                xn = x + step.reshape(n, 8)
-                rn = residuals(xn, rows_ok)
-                cn = float(rn @ rn)
-                if cn < cost:
-                    print("it", _, "cost", cost, "->", cn, "lam", lam) if DEBUG else None
-                    x, r, improved = xn, rn, True
-                    lam = max(lam / 10, 1e-9)
-                    rel = (cost - cn) / max(cost, 1e-30)
-                    cost = cn
-                    break
-                lam *= 10
-            if not improved or rel < 1e-10:
-                break
-        if stage == 0:
-            ui, vi, _ = _project(x, ii, P)
-            uj, vj, _ = _project(x, jj, Q)
-            err = np.hypot(ui - uj, vi - vj) * s
-            new_ok = err <= params.outlier_px
-            if new_ok.all():
-                break
-            rows_ok = new_ok
-
-    H = {}
-    for f, k in col.items():
-        Hn = np.append(x[k], 1.0).reshape(3, 3)
-        Hf = Minv @ Hn @ T
-        H[f] = Hf / Hf[2, 2]
-    ui, vi, _ = _project(x, ii, P)
-    uj, vj, _ = _project(x, jj, Q)
-    err = np.hypot(ui - uj, vi - vj) * s
-    per_pair: dict[tuple[int, int], float] = {}
-    fi_all, fj_all = corr.fi[keep], corr.fj[keep]
-    keys = fi_all * 1_000_003 + fj_all
-    for key in np.unique(keys):
-        sel = keys == key
-        per_pair[(int(fi_all[sel][0]), int(fj_all[sel][0]))] = float(np.sqrt(np.mean(err[sel] ** 2)))
-    used = err[rows_ok]
-    rms = float(np.sqrt(np.mean(used**2))) if len(used) else 0.0
-    return AlignResult(H, rms, per_pair, it_total)
+    corr = corr.within(frames)
+    pair_H = {k: v for k, v in (pair_H or {}).items() if k[0] in H0 and k[1] in H0}
+    w, h = size_wh
+    principal = tuple(principal_px) if principal_px is not None else (w / 2, h / 2)
+    side = max(w, h)
+    f_lo, f_hi = params.focal_range[0] * side, params.focal_range[1] * side
+    nfev = 0
+    why = ""
+    if params.pose_model and len(frames) >= params.pose_min_frames:
+        limit = pairwise_rms(corr, pair_H) + params.pose_slack_px
+        tries = [(float(focal_px), False)] if focal_px else []
+        tries.append((None, True))
+        for f0, self_cal in tries:
+            f0 = f0 or initial_focal(H0, size_wh, principal, pair_H, params)
+            H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params)
+            rms = _rms(err, params.outlier_px)
+            if not ok:
+                fail = "the pose model did not converge"
+            elif not f_lo <= cam.f <= f_hi:
+                fail = (f"self-calibration found an implausible focal length ({cam.f:.0f} px)" if self_cal
+                        else f"outside {f_lo:.0f}-{f_hi:.0f} px, the plausible range for {w}x{h} frames")
+            elif rms > limit:
+                fail = f"the pose model fits {rms:.2f} px RMS, its pairs {limit - params.pose_slack_px:.2f} px"
+            else:
+                note = why and f"{why}; self-calibration finds {cam.f:.0f} px"
+                return AlignResult(to_mosaic_frame(H, size_wh, H0), rms, per_pair_rms(err, corr), nfev, "pose", cam, note)
+            why = f"the focal length {focal_px:g} px contradicts the images ({fail})" if not self_cal else (
+                f"{why}; self-calibrated: {fail}" if why else fail)
+    H_free, n = adjust_homographies(H0, thin(corr, params.pose_points_per_pair), params=params)
+    err = pair_errors(H_free, corr)
+    return AlignResult(to_mosaic_frame(H_free, size_wh, H0), _rms(err, params.outlier_px), per_pair_rms(err, corr),
+                       nfev + n, "homography", None, why)

@@ -89,6 +89,25 @@ def _guided_subsets(fa: Features, fb: Features, prior_H: np.ndarray, size_wh: tu
     return sa, sb, (d2 < radius * radius).astype(np.uint8)
 
 
+def usac_params(threshold_px: float, seed: int) -> cv2.UsacParams:
+    """OpenCV's USAC_MAGSAC settings, seeded: ``cv2.setRNGSeed`` does not reach USAC's own
+    generator, ``UsacParams.randomGeneratorState`` does."""
+    p = cv2.UsacParams()
+    p.threshold = threshold_px
+    p.confidence = 0.999
+    p.maxIterations = 5000
+    p.randomGeneratorState = seed
+    p.sampler = cv2.SAMPLING_UNIFORM
+    p.score = cv2.SCORE_METHOD_MAGSAC
+    p.loMethod = cv2.LOCAL_OPTIM_SIGMA
+    p.loIterations = 10
+    p.loSampleSize = 50
+    p.final_polisher = cv2.MAGSAC
+    p.final_polisher_iterations = 10
+    p.isParallel = False
+    return p
+
+
 def plausible_homography(H: np.ndarray, size_wh: tuple[int, int], params: MatchParams) -> str:
     """Empty string if ``H`` is a plausible frame-to-frame view change of a wall, else the reason."""
     if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
@@ -145,8 +164,7 @@ def match_pair(
         return PairFailure(i, j, f"too few matches ({len(qa)})", len(qa))
     src, dst = fa.xy[qa], fb.xy[tb]
     seed = int(rng.integers(2**31)) if rng is not None else 0
-    cv2.setRNGSeed(seed)
-    H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, params.ransac_px, maxIters=5000, confidence=0.999)
+    H, mask = cv2.findHomography(src, dst, usac_params(params.ransac_px, seed))
     if H is None or mask is None:
         return PairFailure(i, j, "no homography found", len(qa))
     inl = mask.ravel().astype(bool)

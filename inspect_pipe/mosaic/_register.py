@@ -13,10 +13,9 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
-from ._align import AlignParams, Correspondences, refine
+from ._align import AlignParams, Camera, Correspondences, align_group, quick_layout
 from ._features import Features, detect_features, to_gray
 from ._homography import MatchParams, PairFailure, PairMatch, match_pair
-from ._rectify import rectify
 from ._pairs import layout_pairs, short_links, temporal_pairs
 from ._vignetting import THUMB_WH, Vignetting, VignettingAccumulator
 
@@ -80,6 +79,9 @@ class Group:
     H: dict[int, np.ndarray]
     rms_px: float
     keyframes: list[int] = field(default_factory=list)  # the frames registered globally and blended
+    model: str = "homography"  # global model of the keyframes: "pose" (K [r1 r2 t]) or "homography"
+    camera: Camera | None = None  # intrinsics the pose model used or found; H maps pixels undistorted with it
+    note: str = ""  # why the pose model was not kept
 
     def __post_init__(self) -> None:
         if not self.keyframes:
@@ -375,7 +377,8 @@ def register(
                 H = _initial_layout(comp, accepted)
                 if _round > 0 and len(comp) >= 3:
                     comp_edges = [e for e in accepted if e.i in H]
-                    H = refine(H, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh, params=params.align).H
+                    H = quick_layout(H, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
+                                     focal_px=params.focal_px, params=params.align)
                 linked = short_links([(e.i, e.j) for e in accepted if e.i in H])
                 for i, j, _ov in layout_pairs(H, size_wh, tried=tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
                     new.append((i, j))
@@ -412,7 +415,9 @@ def register(
             H0 = _initial_layout(comp, edges)
             comp_set = set(comp)
             comp_edges = [e for e in edges if e.i in comp_set]
-            res = refine(H0, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh, params=params.align)
+            res = align_group(H0, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
+                              focal_px=params.focal_px, principal_px=params.principal_px,
+                              pair_H={(e.i, e.j): e.H for e in comp_edges}, params=params.align)
             bad = {key for key, r in res.per_pair_rms_px.items() if r > params.pair_outlier_px}
             if bad:
                 for e in comp_edges:
@@ -420,10 +425,7 @@ def register(
                         failures.append(PairFailure(e.i, e.j, f"inconsistent with the global alignment ({res.per_pair_rms_px[(e.i, e.j)]:.1f} px)", e.n_matches))
                 edges = [e for e in edges if (e.i, e.j) not in bad]
                 dropped = True
-            H_final = res.H
-            if params.focal_px and len(comp) >= 5:
-                H_final, _ = rectify(res.H, size_wh, params.focal_px, params.principal_px)
-            groups.append(Group(sorted(comp), H_final, res.rms_px))
+            groups.append(Group(sorted(comp), res.H, res.rms_px, model=res.model, camera=res.camera, note=res.note))
         if not dropped:
             break
 

@@ -140,3 +140,28 @@ def covered_fraction(mosaic_bgra: np.ndarray, similarity: np.ndarray, H_gt: dict
         cv2.fillConvexPoly(seen, np.round(footprint(H, size_wh)).astype(np.int32), 1)
     warped = cv2.warpAffine(mosaic_bgra[..., 3], similarity, (cw, ch), flags=cv2.INTER_NEAREST)
     return float(((warped > 0) & (seen > 0)).sum() / max(seen.sum(), 1))
+
+
+@dataclass(frozen=True)
+class CornerError:
+    median_px: float
+    max_px: float
+    n_frames: int
+
+
+def corner_error(H_est: dict[int, np.ndarray], H_gt: dict[int, np.ndarray], size_wh: tuple[int, int]) -> CornerError:
+    """The synthetic sweeps' accuracy protocol: every frame's four corners placed by the mosaic,
+    one similarity (mosaic -> wall, least squares over all corners) applied, then the distance of
+    each corner to its true wall position (median and max over all corners, wall px)."""
+    frames = sorted(f for f in H_est if f in H_gt)
+    w, h = size_wh
+    corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+    X = np.concatenate([_apply(H_est[f], corners) for f in frames])
+    Y = np.concatenate([_apply(H_gt[f], corners) for f in frames])
+    mx, my = X.mean(0), Y.mean(0)
+    U, S, Vt = np.linalg.svd((Y - my).T @ (X - mx))
+    D = np.diag([1, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / ((X - mx) ** 2).sum())
+    err = np.linalg.norm((s * (R @ (X - mx).T)).T + my - Y, axis=1)
+    return CornerError(float(np.median(err)), float(err.max()), len(frames))

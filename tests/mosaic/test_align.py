@@ -1,0 +1,92 @@
+"""The global pose model (H_i = K [r1 r2 t_i]) against exact ground truth, with and without the focal length."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from inspect_pipe.mosaic import AlignParams, FolderSource, MosaicParams, RegisterParams, register, run_mosaic
+from inspect_pipe.mosaic._align import Camera, homographies_from_poses, poses_from_homographies, thin, Correspondences
+from inspect_pipe.mosaic._rectify import estimate_focal, focals_from_homography
+from inspect_pipe.mosaic.metrics import corner_error
+
+
+def test_focals_from_homography_recovers_a_rotating_cameras_focal_length():
+    # GIVEN the homography of a camera (f = 700 px) rotating about its centre, in centred pixels
+    f = 700.0
+    K = np.diag([f, f, 1.0])
+    a, b = np.deg2rad(4.0), np.deg2rad(-3.0)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]) @ np.array(
+        [[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    H = K @ R @ np.linalg.inv(K)
+    # THEN OpenCV's formula, restated, gives it back
+    f0, f1 = focals_from_homography(H)
+    assert f0 == pytest.approx(f, rel=1e-6) and f1 == pytest.approx(f, rel=1e-6)
+    C = np.array([[1, 0, 320], [0, 1, 240], [0, 0, 1.0]])
+    assert estimate_focal([C @ H @ np.linalg.inv(C)], (640, 480)) == pytest.approx(f, rel=1e-6)
+
+
+def test_poses_round_trip_through_homographies():
+    rng = np.random.default_rng(3)
+    K = Camera(300.0, 128.0, 96.0).K
+    H = {}
+    for k in range(5):
+        t = np.deg2rad(rng.normal(0, 3, 3))
+        Rx = np.array([[1, 0, 0], [0, np.cos(t[0]), -np.sin(t[0])], [0, np.sin(t[0]), np.cos(t[0])]])
+        Ry = np.array([[np.cos(t[1]), 0, np.sin(t[1])], [0, 1, 0], [-np.sin(t[1]), 0, np.cos(t[1])]])
+        R = Rx @ Ry
+        A = np.c_[R[:, :2], [rng.normal(0, 50), rng.normal(0, 50), 300 + rng.normal(0, 10)]]
+        H[k] = np.linalg.inv(K @ A)
+    R, t = poses_from_homographies(H, K)
+    back = homographies_from_poses(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2), K)
+    for k, h in H.items():
+        assert np.allclose(back[k], h / h[2, 2], atol=1e-9)
+
+
+def test_thin_keeps_at_most_k_per_pair_spread_over_the_list():
+    fi = np.r_[np.zeros(40, int), np.ones(5, int)]
+    fj = fi + 1
+    p = np.arange(90, dtype=float).reshape(45, 2)
+    c = thin(Correspondences(fi, fj, p, p), 12)
+    assert (c.fi == 0).sum() == 12 and (c.fi == 1).sum() == 5
+    assert c.p[c.fi == 0][0, 0] == 0 and c.p[c.fi == 0][-1, 0] == 78  # first and last of pair (0, 1)
+
+
+@pytest.mark.parametrize("focal", [True, False], ids=["focal", "self-calibrated"])
+def test_pose_model_places_the_sweep_on_the_wall(synthetic_sweep, focal):
+    # GIVEN a 3-pass sweep with yaw, scale and tilt jitter and exact ground truth
+    folder, H_gt, path, _ = synthetic_sweep
+    reg = register(FolderSource(folder), params=RegisterParams(focal_px=path.focal_px if focal else None))
+    g = reg.groups[0]
+    # THEN the pose model is kept, and the self-calibrated focal length is near the truth
+    assert g.model == "pose", g.note
+    assert abs(g.camera.f / path.focal_px - 1) < (1e-9 if focal else 0.15)
+    # AND every corner is within a pixel of the wall after one similarity
+    ce = corner_error(g.H, H_gt, path.frame_wh)
+    assert ce.n_frames == len(H_gt)
+    assert ce.median_px < 0.5 and ce.max_px < 2.0, ce
+
+
+def test_pose_model_beats_free_homographies_without_the_focal_length(synthetic_sweep):
+    folder, H_gt, path, _ = synthetic_sweep
+    free = register(FolderSource(folder), params=RegisterParams(align=AlignParams(pose_model=False))).groups[0]
+    pose = register(FolderSource(folder)).groups[0]
+    assert free.model == "homography" and pose.model == "pose"
+    e_free, e_pose = (corner_error(g.H, H_gt, path.frame_wh) for g in (free, pose))
+    assert e_pose.max_px < 0.5 * e_free.max_px, (e_pose, e_free)
+
+
+def test_a_focal_length_that_contradicts_the_images_is_reported(synthetic_sweep, tmp_path):
+    # GIVEN the sweep and a focal length 3x too long
+    folder, H_gt, path, _ = synthetic_sweep
+    out = run_mosaic(FolderSource(folder), tmp_path, params=MosaicParams(register=RegisterParams(focal_px=3 * path.focal_px)))
+    # THEN one line names the problem, and the self-calibrated pose model still places every frame
+    assert out.problems and "contradicts the images" in out.problems[0] and "900" in out.problems[0]
+    doc = json.loads((tmp_path / "mosaic.json").read_text())
+    assert len(doc["frames"]) == len(H_gt)
+    assert {f["model"] for f in doc["frames"]} == {"pose"}
+    assert abs(doc["groups"][0]["camera"]["focal_px"] / path.focal_px - 1) < 0.15
+    ce = corner_error({f["index"]: np.array(f["H"]) for f in doc["frames"]}, H_gt, path.frame_wh)
+    assert ce.max_px < 2.0
