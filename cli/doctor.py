@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated, Optional
+
 import typer
 
-from cli._common import one_line_errors
+from cli._common import SURVEY_HELP, load_plan, one_line_errors
 from inspect_pipe.capture import backends
 from inspect_pipe.capture.sources import v4l2
 
@@ -14,16 +17,36 @@ formats, frame sizes and frame rates (v4l2-ctl --list-formats-ext when v4l-utils
 else probed through OpenCV): `capture` runs the camera at its own rate and keeps the frame
 nearest each --rate deadline.
 
-Example:
+With --sweep SWEEP it says instead what that sweep still lacks for a report in metres and ship
+terms (camera calibration, vehicle state, the distance to the wall, a survey plan and its take-off
+tie, the hold's dimensions, the time alignment of imported footage) and what follows for the report.
+
+Examples:
 
   inspect-pipe doctor
 
-Exit 0 (the list is the result, whatever it says).
+  inspect-pipe doctor --sweep out/sweep1 [--survey plan.yaml]
+
+Exit 0 (the list is the result, whatever it says); 2 when the sweep cannot be read.
 """
 
 
 @one_line_errors
-def doctor() -> None:
+def doctor(
+    sweep: Annotated[Optional[Path], typer.Option("--sweep", help="A sweep: what it still lacks for a georeferenced report.")] = None,
+    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " With --sweep: judged with this plan.")] = None,
+) -> None:
+    if sweep is not None:
+        from inspect_pipe.capture import read_sweep
+        from inspect_pipe.pipeline._readiness import sweep_readiness
+
+        findings = sweep_readiness(read_sweep(sweep), load_plan(survey))
+        for f in findings:
+            typer.echo(f"{'ok ' if f.ok else 'no '} {f.line()}")
+        missing = sum(not f.ok for f in findings)
+        typer.echo(f"{sweep}: " + ("ready for a report in metres and ship terms" if not missing
+                                    else f"{missing} thing(s) to provide; the report states each as a limitation"))
+        return
     rows = backends()
     width = max(len(f"{b.kind} {b.name}") for b in rows)
     for b in rows:

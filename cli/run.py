@@ -86,6 +86,17 @@ def check_engine(dc) -> None:
     load_engine(dc.engine, dc.model).check_kinds(dc.kinds)
 
 
+def warn_missing(sweep_dir: Path, plan, echo=None) -> None:
+    """One warning line per piece the sweep lacks for a report in metres and ship terms
+    (``doctor --sweep`` says the same at length); the report lists them as limitations."""
+    from inspect_pipe.capture import read_sweep
+    from inspect_pipe.pipeline._readiness import sweep_readiness
+
+    for f in sweep_readiness(read_sweep(sweep_dir), plan):
+        if not f.ok:
+            (echo or note)(f"warning: {sweep_dir}: {f.what}: {f.detail}")
+
+
 def _name(spec: str) -> str:
     p = Path(spec[4:] if spec.startswith("fly:") else spec)
     return p.stem if p.suffix in (".yaml", ".yml") else p.name
@@ -128,6 +139,9 @@ def run(
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
                          m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan) for s in inputs]
     check_engine(cfgs[0].detect)
+    for spec in inputs:
+        if input_kind(spec) == "sweep":
+            warn_missing(Path(spec), plan)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
         try:

@@ -182,6 +182,8 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "wall_map": wall.source, "wall_fit_rms_m": wall.fit_rms_m, "wall_fit_max_m": wall.fit_max_m,
         "m_per_px": wall.m_per_px,
         "checksums_sha256": inp.checksums,
+        "survey_plan": None if plan is None else plan.to_json(),
+        "limitations": _limitations(sweep, plan),
         "precision": precision.to_json(),
         "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
                       "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
@@ -189,6 +191,16 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
+
+
+def _limitations(sweep, plan) -> list[str]:
+    """What the inputs lacked, as the report states it (doctor --sweep's findings that failed)."""
+    if sweep is None:
+        return ["no sweep (a plain image folder): no vehicle state, no calibration, no survey plan; positions are "
+                "metres from the mosaic's lower-left corner at the given scale"]
+    from inspect_pipe.pipeline._readiness import sweep_readiness
+
+    return [f"{f.what}: {f.detail}; {f.consequence}" for f in sweep_readiness(sweep, plan) if not f.ok]
 
 
 def survey_plan_of(sweep, override=None):

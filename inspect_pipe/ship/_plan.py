@@ -148,8 +148,6 @@ class SurveyPlan(_Strict):
         out = []
         if self.vessel.imo and not imo_check_digit_ok(self.vessel.imo):
             out.append(f"vessel.imo {self.vessel.imo}: the check digit does not match (check the number)")
-        if self.takeoff is None and not self.control_points:
-            out.append("neither takeoff nor control_points: the flight's local frame is taken as the hold frame")
         return out
 
 
