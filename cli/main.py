@@ -16,6 +16,7 @@ from cli import detect as _detect
 from cli import fly as _fly
 from cli import base_station as _base_station
 from cli import capture as _capture
+from cli import calibrate as _calibrate
 from cli import doctor as _doctor
 from cli import report as _report
 from cli import run as _run
@@ -58,6 +59,7 @@ app.add_typer(_detect.app, name="detect")
 app.command("fly", help=_fly.HELP)(_fly.fly)
 app.command("base-station", help=_base_station.HELP)(_base_station.base_station)
 app.command("capture", help=_capture.HELP)(_capture.capture)
+app.command("calibrate", help=_calibrate.HELP)(_calibrate.calibrate)
 app.command("doctor", help=_doctor.HELP)(_doctor.doctor)
 app.command("report", help=_report.HELP)(_report.report)
 app.command("run", help=_run.HELP)(_run.run)

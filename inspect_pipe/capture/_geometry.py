@@ -32,13 +32,18 @@ R_BODY_CAM_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Pinhole camera with OpenCV distortion ``dist`` = (k1, k2, p1, p2, k3)."""
+    """Pinhole camera with OpenCV distortion ``dist`` = (k1, k2, p1, p2, k3).
+
+    ``calibration`` says where K and dist come from: ``{"source": path, "sha256", "rms_px"}`` for a
+    camera file (``capture._calibration.load_camera``), ``{"source": "simulator", ...}`` for the
+    simulated camera, None for a guess (:meth:`from_hfov`)."""
 
     K: np.ndarray  # 3x3, pixels
     dist: np.ndarray  # (5,)
     width: int
     height: int
     name: str = "camera"
+    calibration: dict | None = None
 
     @staticmethod
     def from_hfov(width: int, height: int, hfov_deg: float, dist=(0.0, 0.0, 0.0, 0.0, 0.0), name: str = "camera") -> "CameraModel":
@@ -58,7 +63,13 @@ class CameraModel:
             "height": self.height,
             "K": np.asarray(self.K, float).round(6).tolist(),
             "dist": np.asarray(self.dist, float).round(8).tolist(),
+            "calibration": self.calibration,
+            **({} if self.calibration else {"note": self.uncalibrated_note}),
         }
+
+    @property
+    def uncalibrated_note(self) -> str:
+        return f"uncalibrated: {self.hfov_deg:.0f}\u00b0 guess"
 
 
 @dataclass(frozen=True)

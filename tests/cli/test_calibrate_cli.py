@@ -1,0 +1,79 @@
+"""``inspect-pipe calibrate`` as a user runs it: the table, camera.yaml, one-line errors."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from inspect_pipe.capture._calibration import load_camera
+from tests.capture.test_calibration import FIXTURES, chessboard_views
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("shots")
+    for k, v in enumerate(chessboard_views(8, seed=3)):
+        cv2.imwrite(str(d / f"view{k:02d}.png"), v)
+    cv2.imwrite(str(d / "view99_blank.png"), np.full((300, 400), 180, np.uint8))  # no board in it
+    return d
+
+
+def test_calibrate_writes_camera_yaml_and_names_dropped_views(tmp_path, shots):
+    out = tmp_path / "camera.yaml"
+    res = runner.invoke(app, ["calibrate", str(shots), "-o", str(out), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 0, res.output
+    assert "8 of 9 views used" in res.output
+    assert "view99_blank.png" in res.output and "board not found" in res.output
+    assert "RMS reprojection error" in res.output
+    cam = load_camera(out)
+    assert abs(cam.K[0, 0] - 430.0) < 0.005 * 430.0 and (cam.width, cam.height) == (400, 300)
+    assert out.read_text().startswith("%YAML:1.0")
+
+
+def test_two_real_views_are_too_few_and_nothing_is_written(tmp_path):
+    out = tmp_path / "camera.yaml"
+    res = runner.invoke(app, ["calibrate", str(FIXTURES / "left01.jpg"), str(FIXTURES / "left12.jpg"), "-o", str(out),
+                              "--board", "9x6", "--square-m", "0.025"])
+    assert res.exit_code == 2
+    assert "found in only 2 of 2 images" in res.output and "Traceback" not in res.output
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_unreadable_image_is_one_line_exit_2(tmp_path, shots):
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    out = tmp_path / "camera.yaml"
+    res = runner.invoke(app, ["calibrate", str(shots / "view00.png"), str(bad), "-o", str(out), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 2
+    assert "broken.png" in res.output and "unreadable" in res.output
+    assert not out.exists()
+
+
+def test_images_of_different_sizes_refused(tmp_path, shots):
+    d = tmp_path / "mixed"
+    d.mkdir()
+    for p in sorted(shots.glob("view0*.png"))[:3]:
+        shutil.copy(p, d / p.name)
+    shutil.copy(FIXTURES / "left01.jpg", d / "z.jpg")
+    res = runner.invoke(app, ["calibrate", str(d), "-o", str(tmp_path / "c.yaml"), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 2 and "z.jpg" in res.output and "640x512" in res.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--board", "9by6", "--square-m", "0.03"], "not COLSxROWS"),
+    (["--board", "9x6", "--square-m", "-1"], "not a positive length"),
+    (["--board", "9x6", "--square-m", "0.03", "--pattern", "circles"], "unknown"),
+    (["--board", "7x5", "--square-m", "0.04", "--pattern", "charuco"], "needs the marker side"),
+])
+def test_bad_options_are_one_line_exit_2(tmp_path, shots, args, message):
+    res = runner.invoke(app, ["calibrate", str(shots), "-o", str(tmp_path / "c.yaml"), *args])
+    assert res.exit_code == 2 and message in res.output
+    assert not (tmp_path / "c.yaml").exists()
