@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 DATA   ?= ../shared/data
 OUT    ?= out
 
-EXTRAS := test,base,mavlink,browser-test,report,dask,campaign
+EXTRAS := test,base,mavlink,import,browser-test,report,dask,campaign
 
 .PHONY: install test demo bench clean chromium pdfdeps lock lock-upgrade
 

@@ -21,6 +21,7 @@ HELP = (
     "  inspect-pipe fly --scenario scenarios/fig6_top_attenuated_go.yaml --log out/fig6.jsonl\n\n"
     "  inspect-pipe fly --scenario scenarios/fig7_inspection_sweep.yaml --log out/fig7.jsonl\n\n"
     "  inspect-pipe fly --scenario scenarios/inspection_sweep_wall.yaml --log out/wall.jsonl --sweep out/wall_sweep\n\n"
+    "  inspect-pipe fly --scenario scenarios/inspection_sweep_wall.yaml --log out/wall.jsonl --sweep out/wall_sweep --tlog out/wall.tlog\n\n"
     "  inspect-pipe fly --scenario scenarios/link_loss.yaml --log out/sim.jsonl --mavlink-sim udp:127.0.0.1:14540\n\n"
     "  inspect-pipe fly --scenario scenarios/link_loss.yaml --log out/companion.jsonl --vehicle mavlink:udpout:127.0.0.1:14540"
 )
@@ -36,9 +37,12 @@ def fly(
     mavlink_sim: Annotated[Optional[str], typer.Option("--mavlink-sim", help="expose the simulator as a MAVLink vehicle on URL (udp:HOST:PORT listens), in real time")] = None,
     autopilot: Annotated[Autopilot, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = Autopilot.px4,
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="mavlink:URL: fly a real autopilot with the scenario's operator script")] = None,
+    tlog: Annotated[Optional[Path], typer.Option("--tlog", help="also write the MAVLink telemetry a real autopilot streams (.tlog, as a ground station records it; docs/import.md)")] = None,
 ) -> None:
     """Fly a scenario in the simulated cargo hold and write the flight log."""
     sc = load_scenario(scenario)
+    if tlog is not None and (mavlink_sim is not None or vehicle is not None):
+        raise InputError("--tlog", "is written by headless flights only", "on a MAVLink link, record the telemetry with a ground station")
     if mavlink_sim is not None or vehicle is not None:  # real-time MAVLink flights (docs/base_station.md)
         from inspect_pipe.flight.mavlink_fly import fly_mavlink
 
@@ -52,15 +56,35 @@ def fly(
         if sweep.exists() and (not sweep.is_dir() or any(sweep.iterdir())):
             raise InputError(str(sweep), "exists and is not an empty directory", "give a new sweep directory")
         recorder = TrajectoryRecorder(sc)
+    tlog_writer = None
+    if tlog is not None:
+        from inspect_pipe.flight.tlog import TlogWriter
+
+        tlog_writer = TlogWriter(tlog, sc)
+    callbacks = [cb for cb in (recorder, tlog_writer) if cb is not None]
     try:
         writer = FlightLogWriter(log, sc, tick_hz=StackParams().control.tick_hz)
         with writer:
-            if recorder is None:
+            if not callbacks:
                 result = run_scenario(sc, on_tick=writer)
             else:
-                result = run_scenario(sc, on_tick=lambda rec: (writer(rec), recorder(rec)))
+                def on_tick(rec) -> None:
+                    writer(rec)
+                    for cb in callbacks:
+                        cb(rec)
+
+                result = run_scenario(sc, on_tick=on_tick)
     except OSError as err:
+        if tlog_writer is not None:
+            tlog_writer.close(keep=False)
         raise InputError(str(log), f"cannot write the flight log ({err.strerror})", "choose a writable path") from None
+    except BaseException:
+        if tlog_writer is not None:
+            tlog_writer.close(keep=False)
+        raise
+    if tlog_writer is not None:
+        tlog_writer.close()
+        typer.echo(f"tlog {tlog}: {tlog_writer.messages} MAVLink messages")
     typer.echo(
         f"{sc.name}: {result.status.value}, {result.final_fsm.value} after {result.sim_time_s:.1f} s "
         f"({result.speed_x_real_time:.0f}x real time); log {log}"

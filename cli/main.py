@@ -22,6 +22,7 @@ from cli import report as _report
 from cli import run as _run
 from cli import demo as _demo
 from cli import campaign as _campaign
+from cli import import_ as _import
 
 app = typer.Typer(
     cls=VerbosityGroup,  # -q/--quiet and -v/--verbose on the app and on every command
@@ -65,6 +66,7 @@ app.command("report", help=_report.HELP)(_report.report)
 app.command("run", help=_run.HELP)(_run.run)
 app.command("demo", help=_demo.HELP)(_demo.demo)
 app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
+app.command("import", help=_import.HELP)(_import.import_)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,7 +14,7 @@ from inspect_pipe.errors import InputError
 from ._blend import BlendParams, CanvasTooLarge, render
 from inspect_pipe._files import write_json, write_png
 from ._register import FrameSource, Registration, RegisterParams, register
-from ._sweep_input import SweepSource, wall_geometry
+from ._sweep_input import SweepSource, control_point_geometry, wall_geometry
 
 FORMAT = "inspect_pipe.mosaic/1"
 
@@ -212,6 +212,7 @@ def run_mosaic_sweep(
     result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)
     main = {f: h for f, h in result.H.items() if result.group_of[f] == 0}
     geom = wall_geometry(sweep, main, source.focal_px, source.principal_px) if main else None
+    geom = (control_point_geometry(sweep, main, geom) if main else None) or geom
     if geom is not None:
         import json
 

@@ -99,6 +99,8 @@ class WallGeometry:
     drift_m_per_s: tuple[float, float] = (0.0, 0.0)  # odometry drift rate found in (u, v)
     wall: str = "fore_transverse_bulkhead"  # the surveyed wall whose frame (u, v) is (inspect_pipe.ship.Wall)
     wall_note: str | None = None  # a hold dimension the wall frame lacked
+    method: str = ("scale from focal length and wall distance; rotation, offset and the odometry's linear drift fitted "
+                   "(Huber) between frame centres in the mosaic and the vehicle's position estimates")
 
     def to_json(self) -> dict:
         return {
@@ -107,8 +109,7 @@ class WallGeometry:
             "wall": self.wall,
             "wall_frame_note": self.wall_note,
             "wall_fit": {
-                "method": "scale from focal length and wall distance; rotation, offset and the odometry's "
-                "linear drift fitted (Huber) between frame centres in the mosaic and the vehicle's position estimates",
+                "method": self.method,
                 "odometry_drift_m_per_s": [round(d, 5) for d in self.drift_m_per_s],
                 "rms_m": round(self.rms_m, 4),
                 "max_m": round(self.max_m, 4),
@@ -182,6 +183,56 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
     T[:2, :2], T[:2, 2] = L, t
     return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift),
                         frame.wall.value, meta.wall_frame_note())
+
+
+def control_point_geometry(sweep, H: dict[int, np.ndarray], odometry: WallGeometry | None) -> WallGeometry | None:
+    """The survey plan's control points (a pixel of a named frame and the wall point it shows)
+    tie the mosaic to the wall: two or more fix rotation, scale and offset (a similarity, least
+    squares); one only shifts the odometry's placement. None without usable points."""
+    plan = sweep.meta.survey_plan
+    if plan is None or not plan.control_points:
+        return None
+    by_name = {}
+    for i, f in enumerate(sweep.frames):
+        by_name.setdefault(f.image, i)
+        by_name.setdefault(Path(f.image).name, i)
+    K, dist = np.asarray(sweep.meta.K, float), np.asarray(sweep.meta.dist, float)
+    mos, wall = [], []
+    for cp in plan.control_points:
+        i = by_name.get(cp.image, by_name.get(Path(cp.image).name))
+        if i is None or i not in H:
+            continue  # a frame that is not in the sweep or was not placed
+        und = cv2.undistortPoints(np.array([[cp.pixel]], np.float64), K, dist, P=K).reshape(2)
+        q = H[i] @ np.array([und[0], und[1], 1.0])
+        mos.append(q[:2] / q[2])
+        wall.append(cp.wall_m)
+    if not mos:
+        return None
+    M, Wm = np.array(mos, float), np.array(wall, float)
+    F = np.diag([1.0, -1.0])
+    meta = sweep.meta
+    if len(M) == 1:
+        if odometry is None:
+            return None  # one point fixes no scale
+        T = odometry.wall_from_mosaic.copy()
+        p = T @ np.array([M[0, 0], M[0, 1], 1.0])
+        T[:2, 2] += Wm[0] - p[:2] / p[2]
+        return WallGeometry(odometry.m_per_px, T, 0.0, 0.0, odometry.free_scale_m_per_px, 1, odometry.drift_m_per_s,
+                            odometry.wall, odometry.wall_note, odometry.method + "; offset from 1 control point of the survey plan")
+    mc, wc = M.mean(0), Wm.mean(0)
+    A = (F @ (Wm - wc).T) @ (M - mc)
+    U, S, Vt = np.linalg.svd(A)
+    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    scale = float(np.trace(np.diag(S) @ D) / ((M - mc) ** 2).sum())
+    L = scale * F @ R
+    t = wc - L @ mc
+    r = np.linalg.norm(Wm - (M @ L.T + t), axis=1)
+    T = np.eye(3)
+    T[:2, :2], T[:2, 2] = L, t
+    return WallGeometry(scale, T, float(np.sqrt(np.mean(r ** 2))), float(r.max()), scale, len(M), (0.0, 0.0),
+                        meta.wall_frame().wall.value, meta.wall_frame_note(),
+                        f"similarity fitted to {len(M)} control points of the survey plan (residual over the points)")
 
 
 def is_sweep(path: Path) -> bool:

@@ -30,7 +30,17 @@ WALLS = {
 }
 
 
+_FLOWN: dict[str, Path] = {}
+
+
 def _fly_sweep(tmp_path: Path, wall: str) -> Path:
+    """Fly once per wall and test session (the sweep is only read afterwards)."""
+    if wall not in _FLOWN:
+        _FLOWN[wall] = _fly(tmp_path, wall)
+    return _FLOWN[wall]
+
+
+def _fly(tmp_path: Path, wall: str) -> Path:
     start, yaw, origin = WALLS[wall]
     sc = {
         "format": "inspect_pipe.scenario/1", "name": f"sweep_{wall}", "duration_s": 11.0, "seed": 3,
@@ -172,3 +182,40 @@ def test_nonsense_plans_get_one_line_naming_the_field(change, message):
         parse_survey_plan(doc, "plan.yaml")
     text = str(err.value)
     assert text.startswith("plan.yaml: ") and message in text and "\n" not in text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not SHIPPED_WALL.is_file(), reason="scenario asset missing")
+def test_control_points_place_footage_without_vehicle_state(tmp_path):
+    # GIVEN the left-wall sweep stripped of every vehicle state (footage without a log) and a plan
+    # with two control points: a pixel of two frames and the wall point each shows
+    import shutil
+
+    from inspect_pipe.capture._geometry import distort_points
+
+    flown = _fly_sweep(tmp_path, "left")
+    sweep_dir = tmp_path / "no_state"
+    shutil.copytree(flown, sweep_dir)
+    lines = [json.loads(x) for x in (sweep_dir / "frames.jsonl").read_text().splitlines()]
+    for x in lines:
+        x["state"] = None
+    (sweep_dir / "frames.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    (sweep_dir / "COMPLETE").unlink(missing_ok=True)
+    sweep = read_sweep(sweep_dir)
+    cps = []
+    for i, und in ((40, (120.0, 90.0)), (100, (250.0, 150.0))):
+        f = sweep.frames[i]
+        w = np.linalg.inv(f.truth.H_wall_m_to_frame) @ np.array([*und, 1.0])
+        px = distort_points(sweep.meta.camera, np.array([und]))[0]
+        cps.append({"image": f.image, "pixel": [float(px[0]), float(px[1])], "wall_m": [float(w[0] / w[2]), float(w[1] / w[2])]})
+    doc = yaml.safe_load(PLAN)
+    doc["control_points"] = cps
+    plan = parse_survey_plan(doc, "plan.yaml")
+    # WHEN it is mosaicked with the plan
+    run_mosaic_sweep(sweep_dir, tmp_path / "mosaic", survey_plan=plan)
+    # THEN the control points alone place every frame within 5 cm of the truth
+    m = json.loads((tmp_path / "mosaic" / "mosaic.json").read_text())
+    assert m["wall_fit"]["method"].startswith("similarity fitted to 2 control points")
+    found, true = _wall_errors(sweep_dir, tmp_path / "mosaic")
+    err = np.linalg.norm(found - true, axis=1).max()
+    assert err <= 0.05, err

@@ -1,0 +1,250 @@
+"""``inspect-pipe import`` and ``fly --tlog``: a simulated flight left behind as a real drone leaves it
+(JPEGs with a shifted EXIF clock + the MAVLink telemetry log), imported and checked against the
+simulator's own sweep; the flight-log readers on real PX4 ULogs; bad input."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from inspect_pipe.capture._sweep import read_sweep
+from inspect_pipe.errors import InputError
+from inspect_pipe.importer import open_footage, read_flight_log, resample, write_drone_footage
+from inspect_pipe.importer._footage import FootageFrame
+from inspect_pipe.ship import hold_from_takeoff, parse_survey_plan
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "import"
+SHARED_ULOGS = Path(__file__).resolve().parents[3] / "shared" / "data" / "flight_logs" / "px4_ulog"
+CLOCK_OFFSET_S = -2.437  # the camera's clock is this far behind... ahead of the log (camera minus log)
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    """A 12 s simulated flight: its own sweep, its tlog, and its frames as a drone's JPEGs."""
+    d = tmp_path_factory.mktemp("flight")
+    res = CliRunner().invoke(app, ["fly", "--scenario", str(FIXTURES / "short_sweep.yaml"), "--log", str(d / "f.jsonl"),
+                                   "--sweep", str(d / "sweep"), "--tlog", str(d / "f.tlog")])
+    assert res.exit_code == 0, res.output
+    n = write_drone_footage(d / "sweep", d / "DCIM", clock_offset_s=CLOCK_OFFSET_S, utc_offset_h=2.0)
+    assert n == 120
+    cam = read_sweep(d / "sweep").meta.camera
+    fs = cv2.FileStorage(str(d / "camera.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", cam.width)
+    fs.write("image_height", cam.height)
+    fs.write("camera_matrix", np.asarray(cam.K, float))
+    fs.write("distortion_coefficients", np.asarray(cam.dist, float).reshape(1, -1))
+    fs.release()
+    return d
+
+
+def test_fly_tlog_streams_what_an_autopilot_streams(flight):
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(flight / "f.tlog"), dialect="common")
+    counts: dict[str, int] = {}
+    first_time = None
+    while (m := conn.recv_match()) is not None:
+        counts[m.get_type()] = counts.get(m.get_type(), 0) + 1
+        if m.get_type() == "SYSTEM_TIME" and first_time is None:
+            first_time = m
+    # 12 s at the 50 Hz control tick; range sensors at 10 Hz, four of them; 1 Hz heartbeat and clock
+    assert counts["ATTITUDE"] == counts["LOCAL_POSITION_NED"] == 601
+    assert counts["DISTANCE_SENSOR"] == 4 * 121
+    assert counts["HEARTBEAT"] == counts["SYSTEM_TIME"] == 13
+    assert first_time.time_unix_usec == 1_700_000_000_000_000 and first_time.time_boot_ms == 0
+    assert not (flight / "f.tlog.part").exists()
+
+
+def test_import_finds_the_camera_clock_offset_and_interpolates_the_state(flight, tmp_path):
+    out = tmp_path / "imported"
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(flight / "f.tlog"), "-o", str(out),
+                                   "--camera", str(flight / "camera.yaml")])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "sweep.json").read_text())
+    ta = doc["time_alignment"]
+    assert ta["method"] == "image_motion_xcorr"
+    assert abs(ta["camera_clock_offset_s"] - CLOCK_OFFSET_S) < 0.020, ta
+    assert ta["correlation"] > 0.9
+    assert doc["camera"]["dist"][0] == pytest.approx(-0.06)
+    direct = read_sweep(flight / "sweep")
+    imp = read_sweep(out, strict=True)
+    assert imp.complete and len(imp) >= 115
+    assert imp.meta.odometry_frame == "takeoff"
+    # a survey plan's take-off tie puts the imported positions in the hold, where the direct sweep has them
+    plan = parse_survey_plan({
+        "format": "inspect_pipe.survey_plan/1", "vessel": {"name": "MV Sim"}, "survey": {"type": "test", "date": "2026-11-20"},
+        "compartment": {"name": "hold"}, "hold": {"aft_bulkhead_frame": 100, "frame_spacing_m": 0.8, "length_m": 12, "width_m": 10},
+        "wall": "fore_transverse_bulkhead", "takeoff": {"position_m": [10.5, 0.5, 0.0], "heading_deg": 0}}, "plan.yaml")
+    hold = hold_from_takeoff(plan, np.array([f.position_m for f in imp.frames]))
+    start = np.array([10.5, 0.5, 0.0])  # the scenario's take-off point: the log's local origin
+    assert np.allclose(hold, np.array([f.position_m for f in imp.frames]) + start, atol=1e-3)
+    by_time = {round(f.t_s, 3): f for f in direct.frames}
+    errs, dist_errs, fsm_same = [], [], []
+    for f in imp.frames:
+        src = int(f.raw["source_frame"][4:8]) - 1  # DJI_0001.JPG is the direct sweep's frame 0
+        g = direct.frames[src]
+        assert abs(f.t_s - g.t_s) < 0.02  # the frame's time on the log's clock, after the offset
+        errs.append(np.linalg.norm(np.asarray(f.position_m) + start * [1, 1, 0] - np.asarray(g.position_m)))
+        if f.dist_front_m is not None and g.dist_front_m is not None:
+            dist_errs.append(abs(f.dist_front_m - g.dist_front_m))
+        fsm_same.append(f.fsm == {"descending": "flying"}.get(g.fsm, g.fsm))
+    assert by_time  # the direct sweep is on the same clock
+    assert np.mean(fsm_same) >= 0.95  # the landed state is streamed at 5 Hz: transitions within 0.2 s
+    # the state at each frame's instant (interpolated, not the last sample: 50 Hz log, 0.3 m/s)
+    assert np.percentile(errs, 95) < 0.01, np.percentile(errs, 95)
+    assert np.median(dist_errs) < 0.01
+
+
+def test_time_offset_overrides_the_alignment(flight, tmp_path):
+    out = tmp_path / "given"
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(flight / "f.tlog"), "-o", str(out), "--time-offset", "-2.5"])
+    assert res.exit_code == 0, res.output
+    ta = json.loads((out / "sweep.json").read_text())["time_alignment"]
+    assert ta == {"camera_clock_offset_s": -2.5, "method": "given", "confidence": None}
+
+
+def test_video_footage_takes_frame_times_from_the_container(flight, tmp_path):
+    imgs = sorted((flight / "DCIM").glob("*.JPG"))[:40]
+    first = cv2.imread(str(imgs[0]))
+    video = tmp_path / "clip.avi"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (first.shape[1], first.shape[0]))
+    for p in imgs:
+        vw.write(cv2.imread(str(p)))
+    vw.release()
+    fo = open_footage(video, video_start="2023-11-14T22:13:20.500Z")
+    assert len(fo.frames) == 40 and fo.kind == "video"
+    t = np.array([f.t_camera_s for f in fo.frames])
+    assert t[0] == pytest.approx(1_700_000_000.5) and np.diff(t) == pytest.approx(1 / 30, abs=1e-3)
+    kept = resample(fo.frames, 10.0)  # 30 fps -> every third frame
+    assert [f.video_index for f in kept] == list(range(0, 40, 3))
+    with pytest.raises(InputError, match="no creation time"):
+        open_footage(video)
+
+
+def test_resample_keeps_slow_footage_whole_and_thins_fast_footage():
+    fast = [FootageFrame(100 + k / 25, f"f{k}") for k in range(50)]
+    kept = resample(fast, 10.0)
+    gaps = np.diff([f.t_camera_s for f in kept])
+    assert len(kept) == 21 and np.all((gaps >= 0.08 - 1e-9) & (gaps <= 0.12 + 1e-9))  # grid 100.0 .. 102.0 s
+    slow = [FootageFrame(100 + k * 2.0, f"f{k}") for k in range(5)]
+    assert resample(slow, 10.0) == slow
+
+
+def test_every_shared_ulog_reads_in_two_seconds():
+    logs = sorted(SHARED_ULOGS.glob("*.ulg")) or [FIXTURES / "sample_appended_multiple.ulg"]
+    for p in logs:
+        t0 = time.perf_counter()
+        tr = read_flight_log(p)
+        assert time.perf_counter() - t0 <= 2.0, p
+        assert len(tr.t_pos) > 50 and len(tr.t_att) > 50 and tr.duration_s > 5
+        assert np.allclose(np.linalg.norm(tr.quat, axis=1), 1.0)
+
+
+def test_ulog_fixture_reads_position_attitude_and_landed_state():
+    tr = read_flight_log(FIXTURES / "sample_appended_multiple.ulg")
+    assert tr.kind == "ulog" and len(tr.t_pos) == 95 and len(tr.t_att) == 306
+    assert tr.start_s == pytest.approx(12.263164) and tr.end_s == pytest.approx(21.803961)
+    assert tr.landed is not None and tr.utc_offset_s is None  # no GPS in this log
+
+
+def test_a_ulog_without_the_local_position_topic_is_named(flight, tmp_path):
+    # the same real log with the topic renamed everywhere (its format and subscription): a valid
+    # ULog that lacks vehicle_local_position
+    raw = (FIXTURES / "sample_appended_multiple.ulg").read_bytes()
+    bad = tmp_path / "no_lpos.ulg"
+    bad.write_bytes(raw.replace(b"vehicle_local_position", b"vehicle_local_positiox"))
+    msg = _run_bad(tmp_path, flight / "DCIM", bad)
+    assert "no vehicle_local_position topic" in msg and str(bad) in msg
+
+
+def _run_bad(tmp_path, frames, log, *extra):
+    out = tmp_path / "never"
+    res = CliRunner().invoke(app, ["import", str(frames), "--log", str(log), "-o", str(out), *extra])
+    assert res.exit_code == 2, res.output
+    assert len(res.output.strip().splitlines()) == 1, res.output
+    assert "Traceback" not in res.output
+    assert not out.exists() and not list(tmp_path.glob(".never*"))  # nothing half-written
+    return res.output
+
+
+def test_images_without_timestamps(flight, tmp_path):
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    cv2.imwrite(str(plain / "a.jpg"), np.zeros((48, 64, 3), np.uint8))
+    msg = _run_bad(tmp_path, plain, flight / "f.tlog")
+    assert "a.jpg" in msg and "DateTimeOriginal" in msg
+
+
+def test_a_log_that_does_not_cover_the_frames(flight, tmp_path):
+    msg = _run_bad(tmp_path, flight / "DCIM", flight / "f.tlog", "--time-offset", "30")
+    assert "f.tlog" in msg and "frames fall inside" in msg
+    later = tmp_path / "later"
+    write_drone_footage(flight / "sweep", later, clock_offset_s=3600.0)
+    msg = _run_bad(tmp_path, later, flight / "f.tlog")
+    assert "f.tlog" in msg and "covers" in msg
+
+
+def test_a_video_the_decoder_refuses(flight, tmp_path):
+    bad = tmp_path / "broken.mp4"
+    bad.write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 20)
+    msg = _run_bad(tmp_path, bad, flight / "f.tlog", "--video-start", "2023-11-14T22:13:20Z")
+    assert "broken.mp4" in msg and "decoder" in msg
+
+
+@pytest.mark.parametrize("content", [b"", b"\xfd\x09garbage" * 300, bytes(np.random.default_rng(1).integers(0, 256, 5000, dtype=np.uint8))])
+def test_an_empty_or_garbled_tlog(flight, tmp_path, content):
+    bad = tmp_path / "bad.tlog"
+    bad.write_bytes(content)
+    msg = _run_bad(tmp_path, flight / "DCIM", bad)
+    assert "bad.tlog" in msg
+
+
+def test_a_tlog_without_attitude_is_named(flight, tmp_path):
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(flight / "f.tlog"), dialect="common")
+    kept = bytearray()
+    while (m := conn.recv_match()) is not None:
+        if m.get_type() != "ATTITUDE":
+            kept += int(m._timestamp * 1e6).to_bytes(8, "big") + m.get_msgbuf()
+    bad = tmp_path / "no_att.tlog"
+    bad.write_bytes(bytes(kept))
+    msg = _run_bad(tmp_path, flight / "DCIM", bad)
+    assert "no ATTITUDE (attitude) in the log" in msg
+
+
+def test_a_dataflash_log_gives_the_same_state_as_the_tlog(flight, tmp_path):
+    from ._dataflash import tlog_to_dataflash
+
+    tlog_to_dataflash(flight / "f.tlog", tmp_path / "f.bin")
+    df, tl = read_flight_log(tmp_path / "f.bin"), read_flight_log(flight / "f.tlog")
+    assert df.kind == "dataflash" and df.utc_source == "GPS week time"
+    assert df.utc_offset_s == pytest.approx(tl.utc_offset_s, abs=1e-3)
+    assert np.allclose(df.pos_ned, tl.pos_ned, atol=1e-4) and np.allclose(np.abs(df.quat @ tl.quat.T).diagonal(), 1.0, atol=1e-6)
+    assert set(df.ranges) == {"forward", "left", "right", "down"}
+    out = tmp_path / "from_bin"
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(tmp_path / "f.bin"), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    ta = json.loads((out / "sweep.json").read_text())["time_alignment"]
+    assert abs(ta["camera_clock_offset_s"] - CLOCK_OFFSET_S) < 0.020, ta
+
+
+def test_a_garbled_dataflash_log_is_one_line(flight, tmp_path):
+    bad = tmp_path / "junk.bin"
+    bad.write_bytes(bytes(np.random.default_rng(2).integers(0, 256, 4000, dtype=np.uint8)))
+    msg = _run_bad(tmp_path, flight / "DCIM", bad)
+    assert "junk.bin" in msg and "DataFlash" in msg
+
+
+def test_tlog_is_for_headless_flights(tmp_path):
+    res = CliRunner().invoke(app, ["fly", "--scenario", str(FIXTURES / "short_sweep.yaml"), "--log", str(tmp_path / "f.jsonl"),
+                                   "--tlog", str(tmp_path / "f.tlog"), "--mavlink-sim", "udp:127.0.0.1:14999"])
+    assert res.exit_code == 2 and "--tlog" in res.output and len(res.output.strip().splitlines()) == 1
+    assert not (tmp_path / "f.tlog").exists() and not (tmp_path / "f.tlog.part").exists()
