@@ -15,13 +15,16 @@ HELP = (
     "distances, estimation mode, flight state, battery, link, the behaviours acting and plain "
     "feedback, and the commands (take-off, land, inspection mode, go/inspect ahead, speeds from "
     "the keyboard or a gamepad).\n\n"
-    "Binds 127.0.0.1 unless --host is given; on any other address a token is printed and every "
-    "client must give it. One client controls, the others watch. Every command is logged.\n\n"
+    "Binds 127.0.0.1 unless --host is given; on any other address a token is printed. The page asks for "
+    "it once and exchanges it for a session cookie (scripts: 'Authorization: Bearer TOKEN'); it never goes "
+    "in a URL or a log. --certfile/--keyfile serve HTTPS (give them whenever the network is not yours). "
+    "Logins and commands are rate-limited. One client controls, the others watch. Every command is logged.\n\n"
     "Examples:\n\n"
     "  inspect-pipe base-station                      # embedded simulator, http://127.0.0.1:8765/\n\n"
     "  inspect-pipe base-station --vehicle sim:scenarios/fig7_inspection_sweep.yaml\n\n"
     "  inspect-pipe base-station --vehicle mavlink:udpout:127.0.0.1:14540\n\n"
-    "  inspect-pipe base-station --host 0.0.0.0 --port 8080   # prints the token to give the tablet"
+    "  inspect-pipe base-station --host 0.0.0.0 --port 8080   # prints the token to give the tablet\n\n"
+    "  inspect-pipe base-station --host 0.0.0.0 --certfile cert.pem --keyfile key.pem   # HTTPS"
 )
 
 
@@ -32,22 +35,27 @@ def base_station(
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="sim:SCENARIO.yaml or mavlink:URL (default: embedded simulator)")] = None,
     token: Annotated[Optional[str], typer.Option("--token", help="token to require (default: a new random one off loopback)")] = None,
     command_log: Annotated[Path, typer.Option("--command-log", help="JSONL log of every command with its client")] = Path("base_station_commands.jsonl"),
+    certfile: Annotated[Optional[Path], typer.Option("--certfile", help="PEM certificate (chain): serve HTTPS/WSS")] = None,
+    keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:
     """Serve the surveyor's base station."""
-    from inspect_pipe.flight.base_station import build_station, is_loopback_host, new_token, require_web, serve
+    from inspect_pipe.flight.base_station import build_station, check_tls, is_loopback_host, new_token, require_web, serve
 
     require_web()
+    check_tls(certfile, keyfile)
     if token is not None and len(token) < 12:
         raise InputError("--token", "too short", "at least 12 characters")
     if not is_loopback_host(host) and token is None:
         token = new_token()
     if command_log.exists() and command_log.is_dir():
         raise InputError(str(command_log), "is a directory", "give a file path for the command log")
-    station = build_station(vehicle, host=host, port=port, token=token, command_log=command_log)
+    station = build_station(vehicle, host=host, port=port, token=token, command_log=command_log, tls=certfile is not None)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "")
-    typer.echo(f"base station for {station.vehicle_name}: {url}")
+    typer.echo(f"base station for {station.vehicle_name}: {'https' if certfile else 'http'}://{shown}:{port}/")
     if token:
-        typer.echo(f"token: {token}  (give it to the surveyor's tablet; requests without it are refused)")
+        typer.echo(f"token: {token}  (type it into the page once; requests without a session are refused)")
+    if not is_loopback_host(host) and certfile is None:
+        typer.echo("warning: plain HTTP off loopback: the token and the session cookie cross the network readable; "
+                   "give --certfile/--keyfile", err=True)
     typer.echo(f"commands logged to {command_log}; Ctrl-C to stop")
-    serve(station, host=host, port=port)
+    serve(station, host=host, port=port, certfile=certfile, keyfile=keyfile)

@@ -204,8 +204,12 @@ def test_token_protected_station_refuses_requests_without_it(tmp_path: Path) -> 
     with Served(station, port) as s:
         with pytest.raises(urllib.error.HTTPError) as err:
             urllib.request.urlopen(f"http://127.0.0.1:{port}/")
-        assert err.value.code == 403
-        assert urllib.request.urlopen(f"http://127.0.0.1:{port}/?token=a-long-enough-token").status == 200
+        assert err.value.code == 401  # the login form (tests/flight/test_base_station_security.py: the exchange)
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/?token=a-long-enough-token")
+        assert err.value.code == 400  # never in a URL
+        bearer = {"Authorization": "Bearer a-long-enough-token"}
+        assert urllib.request.urlopen(urllib.request.Request(f"http://127.0.0.1:{port}/", headers=bearer)).status == 200
 
         async def ws_without_token() -> None:
             async with websockets.connect(s.ws_url) as ws:
@@ -215,7 +219,7 @@ def test_token_protected_station_refuses_requests_without_it(tmp_path: Path) -> 
             asyncio.run(ws_without_token())
 
         async def ws_foreign_origin() -> None:
-            async with websockets.connect(s.ws_url + "?token=a-long-enough-token", origin="http://evil.example") as ws:
+            async with websockets.connect(s.ws_url, additional_headers=bearer, origin="http://evil.example") as ws:
                 await ws.recv()
 
         with pytest.raises(websockets.exceptions.WebSocketException):

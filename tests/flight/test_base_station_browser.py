@@ -67,3 +67,35 @@ def test_fly_to_the_wall_from_the_browser(tmp_path: Path) -> None:
             browser.close()
     log = (tmp_path / "commands.jsonl").read_text()
     assert '"takeoff"' in log and '"land"' in log
+
+
+def test_the_token_is_typed_once_and_the_page_runs_on_the_session_cookie(tmp_path: Path) -> None:
+    port = free_port()
+    station = build_station(None, port=port, token="tablet-token-0123456", command_log=tmp_path / "commands.jsonl")
+    with Served(station, port), sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 800})
+            page.goto(f"http://127.0.0.1:{port}/")
+            # GIVEN a token-protected station THEN the page is a login form
+            assert page.locator("form#login").count() == 1
+            page.fill("#token", "not-the-token-00000")
+            page.click("button[type=submit]")
+            assert "wrong token" in page.content()
+            # WHEN the surveyor types the token THEN the station runs, with the token in no URL and no script-visible cookie
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.fill("#token", "tablet-token-0123456")
+            page.click("button[type=submit]")
+            page.wait_for_function("document.getElementById('role').textContent === 'in control'", timeout=10_000)
+            assert "token" not in page.url and page.evaluate("document.cookie") == ""
+            cookies = page.context.cookies()
+            assert [(c["name"], c["httpOnly"], c["sameSite"]) for c in cookies] == [("ip_session", True, "Strict")]
+            assert cookies[0]["value"] != "tablet-token-0123456"
+            page.wait_for_function("window.basestation.states > 5", timeout=10_000)
+            # WHEN the surveyor logs out THEN the login form is back and the old cookie opens nothing
+            page.click("#btn-logout")
+            page.wait_for_selector("form#login", timeout=10_000)
+        finally:
+            browser.close()
+    log = (tmp_path / "commands.jsonl").read_text()
+    assert "refused: wrong token" in log and '"logout"' in log and "tablet-token-0123456" not in log

@@ -19,6 +19,7 @@ __all__ = [
     "RealTimeFlight",
     "SimPlant",
     "build_station",
+    "check_tls",
     "feedback",
     "is_loopback_host",
     "new_token",
@@ -55,12 +56,12 @@ def new_token() -> str:
 
 
 def build_station(vehicle: str | None, *, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
-                  command_log: Path | None = None, heartbeat_timeout_s: float = 5.0) -> Any:
+                  command_log: Path | None = None, heartbeat_timeout_s: float = 5.0, tls: bool = False) -> Any:
     """``vehicle``: None (embedded default), ``sim:SCENARIO`` or ``mavlink:URL``."""
     from inspect_pipe.flight.base_station.app import BaseStation, StationConfig
     from inspect_pipe.flight.base_station.camera import WallCamera
 
-    cfg = StationConfig(host=host, port=port, token=token, command_log=command_log)
+    cfg = StationConfig(host=host, port=port, token=token, command_log=command_log, tls=tls)
     inbox = OperatorInbox()
     if vehicle is None or vehicle.startswith("sim:"):
         sc: Scenario = parse_scenario(DEFAULT_SCENARIO, source="<default>") if vehicle is None else load_scenario(vehicle[4:])
@@ -77,9 +78,29 @@ def build_station(vehicle: str | None, *, host: str = "127.0.0.1", port: int = 8
     raise InputError(vehicle, "unknown vehicle", "sim:SCENARIO.yaml or mavlink:URL (e.g. mavlink:udpout:127.0.0.1:14540)")
 
 
-def serve(station: Any, *, host: str, port: int) -> None:
-    """Blocking; Ctrl-C stops it."""
+def check_tls(certfile: Path | None, keyfile: Path | None) -> None:
+    """Both or neither, and a certificate chain with its key that Python's ssl loads: else one line."""
+    if (certfile is None) != (keyfile is None):
+        raise InputError("--certfile/--keyfile", "only one given", "give both (PEM certificate chain and its private key) or neither")
+    if certfile is None or keyfile is None:
+        return
+    import ssl
+
+    for opt, path in (("--certfile", certfile), ("--keyfile", keyfile)):
+        if not path.is_file():
+            raise InputError(str(path), "not found" if not path.exists() else "not a file", f"give the PEM file for {opt}")
+    try:
+        ssl.create_default_context(ssl.Purpose.CLIENT_AUTH).load_cert_chain(str(certfile), str(keyfile))
+    except (ssl.SSLError, OSError) as err:
+        raise InputError(f"{certfile} + {keyfile}", f"not a PEM certificate and its key ({getattr(err, 'reason', None) or err.__class__.__name__})",
+                         "e.g. openssl req -x509 -newkey rsa:2048 -nodes -keyout key.pem -out cert.pem -days 365") from None
+
+
+def serve(station: Any, *, host: str, port: int, certfile: Path | None = None, keyfile: Path | None = None) -> None:
+    """Blocking; Ctrl-C stops it. With ``certfile``/``keyfile``: HTTPS and WSS (uvicorn's TLS)."""
     import uvicorn
+
+    check_tls(certfile, keyfile)
 
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
@@ -87,4 +108,6 @@ def serve(station: Any, *, host: str, port: int) -> None:
             s.bind((host, port))
     except OSError as err:
         raise InputError(f"{host}:{port}", f"cannot listen ({err.strerror})", "choose another --port or --host") from None
-    uvicorn.Server(uvicorn.Config(station.app(), host=host, port=port, log_level="warning", ws_max_size=65536)).run()
+    tls = {"ssl_certfile": str(certfile), "ssl_keyfile": str(keyfile)} if certfile else {}
+    # no access log: nothing a request carries ends up in a log
+    uvicorn.Server(uvicorn.Config(station.app(), host=host, port=port, log_level="warning", access_log=False, ws_max_size=65536, **tls)).run()

@@ -1,10 +1,17 @@
 """The base station: one web page (live state, camera, commands) over WebSockets (Starlette).
 
-Security: the server binds 127.0.0.1 unless told otherwise; on any other address every request
-must carry the token printed at start (``?token=``). WebSocket upgrades from a page of another
-origin are refused. One client controls at a time (the first to connect, or the first to ask once
-control is free); the others watch and their commands are refused with a message. Every command
-is logged (JSONL) with its client.
+Security: the server binds 127.0.0.1 unless told otherwise; on any other address a token is
+required. The token is exchanged once: ``POST /login`` with it (the page's form, or JSON
+``{"token": ...}``) sets a session cookie (random, HttpOnly, SameSite=Strict, Secure under TLS)
+that the page and its WebSocket then carry; scripts may send ``Authorization: Bearer TOKEN``
+instead. The token never goes in a URL (a ``?token=`` is refused) and is never logged. ``POST
+/logout`` revokes the session and closes its connections; sessions live in the server's memory,
+so a cookie replayed after logout or after a restart is refused. Logins are rate-limited per
+address and commands per client (token buckets; over the limit: HTTP 429 with Retry-After, or an
+``error`` message with code 429 on the WebSocket). WebSocket upgrades from a page of another
+origin are refused. TLS (``--certfile/--keyfile``) is served by uvicorn. One client controls at
+a time (the first to connect, or the first to ask once control is free); the others watch and
+their commands are refused with a message. Every command is logged (JSONL) with its client.
 
 Messages from the page (JSON objects, at most 1 KiB):
 
@@ -27,22 +34,46 @@ import hmac
 import itertools
 import json
 import math
+import secrets
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Callable
+from urllib.parse import parse_qs
 
 from inspect_pipe.flight.base_station.realtime import OperatorInbox, RealTimeFlight
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
 
-__all__ = ["BaseStation", "StationConfig", "is_loopback", "parse_client_message"]
+__all__ = ["BaseStation", "StationConfig", "TokenBucket", "is_loopback", "parse_client_message"]
 
 MAX_MESSAGE_BYTES = 1024
 BUTTONS = {b.value: b for b in Button}
 STICK_LIMITS = {"vx": 1.0, "vy": 1.0, "vz": 0.5, "yaw_rate": 0.8}  # what the page may ask for
+SESSION_COOKIE = "ip_session"
+SESSION_TTL_S = 12 * 3600.0
+MAX_SESSIONS = 64
+
+
+class TokenBucket:
+    """``burst`` tokens, refilled at ``rate_per_s``; ``take()`` spends one and returns 0, or
+    returns the seconds until one is there (and spends nothing)."""
+
+    def __init__(self, rate_per_s: float, burst: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate, self.burst, self.clock = rate_per_s, burst, clock
+        self.tokens = float(burst)
+        self.t = clock()
+
+    def take(self) -> float:
+        now = self.clock()
+        self.tokens = min(self.burst, self.tokens + (now - self.t) * self.rate)
+        self.t = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return 0.0
+        return (1.0 - self.tokens) / self.rate
 
 
 def is_loopback(host: str) -> bool:
@@ -58,6 +89,11 @@ class StationConfig:
     image_hz: float = 5.0
     capture_hz: float = 2.0  # frames kept while inspection mode is on
     command_log: Path | None = None
+    tls: bool = False  # served over TLS: the session cookie gets Secure
+    # token buckets (rate per s, burst): the page's steady 20 Hz stick stream fits the first
+    stick_rate: tuple[float, float] = (30.0, 40.0)
+    command_rate: tuple[float, float] = (2.0, 5.0)  # buttons and control requests
+    login_rate: tuple[float, float] = (0.2, 5.0)  # login attempts per client address
 
 
 class MessageError(ValueError):
@@ -112,12 +148,15 @@ def _pct(xs: list[float], q: float) -> float | None:
 class _Client:
     ids = itertools.count(1)
 
-    def __init__(self, ws: Any) -> None:
+    def __init__(self, ws: Any, session: str | None = None, rates: StationConfig = StationConfig()) -> None:
         self.id = next(self.ids)
         self.ws = ws
+        self.session = session
         addr = ws.client
         self.address = f"{addr.host}:{addr.port}" if addr else "?"
         self.last_stick: tuple | None = None
+        self.stick_bucket = TokenBucket(*rates.stick_rate)
+        self.command_bucket = TokenBucket(*rates.command_rate)
 
     @property
     def name(self) -> str:
@@ -145,6 +184,9 @@ class BaseStation:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.command_count = 0
+        self.sessions: dict[str, float] = {}  # session id -> issued (monotonic); in memory only
+        self.login_buckets: dict[str, TokenBucket] = {}
+        self.rate_limited = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -165,6 +207,12 @@ class BaseStation:
             self._log.close()
             self._log = None
 
+    def _log_event(self, address: str, what: str, outcome: str) -> None:
+        if self._log is not None:
+            rec = {"t": _dt.datetime.now().isoformat(timespec="milliseconds"), "client": None, "address": address,
+                   "command": {"type": what}, "outcome": outcome}
+            self._log.write(json.dumps(rec) + "\n")
+
     def log_command(self, client: _Client, command: dict, outcome: str = "ok") -> None:
         self.command_count += 1
         if self._log is not None:
@@ -178,6 +226,37 @@ class BaseStation:
             return True
         return given is not None and hmac.compare_digest(given.encode(), self.cfg.token.encode())
 
+    def new_session(self) -> str:
+        now = time.monotonic()
+        for sid, t in list(self.sessions.items()):
+            if now - t > SESSION_TTL_S:
+                del self.sessions[sid]
+        while len(self.sessions) >= MAX_SESSIONS:
+            del self.sessions[min(self.sessions, key=self.sessions.get)]
+        sid = secrets.token_urlsafe(32)
+        self.sessions[sid] = now
+        return sid
+
+    def session_of(self, conn: Any) -> str | None:
+        """The live session id in ``conn``'s cookie, if any."""
+        sid = conn.cookies.get(SESSION_COOKIE)
+        if sid and sid in self.sessions and time.monotonic() - self.sessions[sid] <= SESSION_TTL_S:
+            return sid
+        return None
+
+    def authorized(self, conn: Any) -> bool:
+        """No token configured (loopback), a live session cookie, or ``Authorization: Bearer TOKEN``."""
+        if self.cfg.token is None:
+            return True
+        if self.session_of(conn) is not None:
+            return True
+        scheme, _, given = conn.headers.get("authorization", "").partition(" ")
+        return scheme.lower() == "bearer" and self.token_ok(given.strip())
+
+    def login_wait(self, address: str) -> float:
+        bucket = self.login_buckets.setdefault(address, TokenBucket(*self.cfg.login_rate))
+        return bucket.take()
+
     @staticmethod
     def origin_ok(headers: Any) -> bool:
         origin = headers.get("origin")
@@ -189,7 +268,7 @@ class BaseStation:
     # ------------------------------------------------------------------ the app
     def app(self) -> Any:
         from starlette.applications import Starlette
-        from starlette.responses import HTMLResponse, PlainTextResponse, Response
+        from starlette.responses import HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse, Response
         from starlette.routing import Route, WebSocketRoute
         from starlette.websockets import WebSocket, WebSocketDisconnect
 
@@ -197,20 +276,77 @@ class BaseStation:
         page = (static / "index.html").read_text()
         script = (static / "app.js").read_text()
 
+        login_page = (static / "login.html").read_text()
+        url_token = PlainTextResponse("the token never goes in a URL: enter it on the page (POST /login), or send "
+                                      "'Authorization: Bearer TOKEN'", 400)
+
         async def index(request: Any) -> Response:
-            if not self.token_ok(request.query_params.get("token")):
-                return PlainTextResponse("forbidden: this base station needs the token printed at its start (?token=...)", 403)
+            if "token" in request.query_params:
+                return url_token
+            if not self.authorized(request):
+                return HTMLResponse(login_page, 401, headers={"Cache-Control": "no-store"})
             return HTMLResponse(page, headers={"Cache-Control": "no-store"})
 
         async def app_js(request: Any) -> Response:
             return Response(script, media_type="application/javascript")
 
+        def cookie(response: Response, sid: str | None) -> Response:
+            if sid is None:
+                response.delete_cookie(SESSION_COOKIE, path="/", secure=self.cfg.tls, httponly=True, samesite="strict")
+            else:
+                response.set_cookie(SESSION_COOKIE, sid, path="/", secure=self.cfg.tls, httponly=True, samesite="strict")
+            return response
+
+        async def login(request: Any) -> Response:
+            if "token" in request.query_params:
+                return url_token
+            addr = request.client.host if request.client else "?"
+            wait = self.login_wait(addr)
+            if wait > 0:
+                self.rate_limited += 1
+                return PlainTextResponse(f"too many login attempts from {addr}: retry in {wait:.0f} s", 429,
+                                         headers={"Retry-After": str(max(1, math.ceil(wait)))})
+            body = (await request.body())[:4096]
+            ctype = request.headers.get("content-type", "")
+            given = None
+            if ctype.startswith("application/json"):
+                try:
+                    doc = json.loads(body)
+                    given = doc.get("token") if isinstance(doc, dict) and isinstance(doc.get("token"), str) else None
+                except ValueError:
+                    given = None
+            elif ctype.startswith("application/x-www-form-urlencoded"):
+                given = (parse_qs(body.decode("utf-8", "replace")).get("token") or [None])[0]
+            if given is None:
+                scheme, _, value = request.headers.get("authorization", "").partition(" ")
+                given = value.strip() if scheme.lower() == "bearer" else None
+            browser = "text/html" in request.headers.get("accept", "")
+            if self.cfg.token is None or not self.token_ok(given):
+                self._log_event(addr, "login", "refused: wrong token")  # the attempt, never what was typed
+                if browser:
+                    return HTMLResponse(login_page.replace("<!--error-->", "wrong token"), 403)
+                return PlainTextResponse("wrong token", 403)
+            sid = self.new_session()
+            self._log_event(addr, "login", "ok")
+            return cookie(RedirectResponse("/", 303) if browser else JSONResponse({"ok": True}), sid)
+
+        async def logout(request: Any) -> Response:
+            sid = self.session_of(request)
+            if sid is not None:
+                del self.sessions[sid]
+                for c in [c for c in self.clients.values() if c.session == sid]:
+                    with contextlib.suppress(Exception):
+                        await c.ws.close(code=1008)
+            self._log_event(request.client.host if request.client else "?", "logout", "ok" if sid else "no session")
+            browser = "text/html" in request.headers.get("accept", "")
+            return cookie(RedirectResponse("/", 303) if browser else JSONResponse({"ok": True}), None)
+
         async def ws_endpoint(ws: WebSocket) -> None:
-            if not self.token_ok(ws.query_params.get("token")) or not self.origin_ok(ws.headers):
-                await ws.close(code=1008)
+            if "token" in ws.query_params or not self.authorized(ws) or not self.origin_ok(ws.headers):
+                await ws.close(code=1008)  # policy violation: log in first (the page reloads to its login form)
                 return
             await ws.accept()
-            client = _Client(ws)
+            client = _Client(ws, self.session_of(ws), self.cfg)
             self.clients[client.id] = client
             if self.controller is None:
                 self.controller = client.id
@@ -245,7 +381,8 @@ class BaseStation:
                 task.cancel()
                 self.stop()
 
-        return Starlette(routes=[Route("/", index), Route("/app.js", app_js), WebSocketRoute("/ws", ws_endpoint)], lifespan=lifespan)
+        return Starlette(routes=[Route("/", index), Route("/app.js", app_js), Route("/login", login, methods=["POST"]),
+                                 Route("/logout", logout, methods=["POST"]), WebSocketRoute("/ws", ws_endpoint)], lifespan=lifespan)
 
     def _role(self, client: _Client) -> str:
         return "control" if self.controller == client.id else "watch"
@@ -268,6 +405,17 @@ class BaseStation:
             await self._send(client, {"type": "error", "message": f"ignored: {err}"})
             return
         kind = msg["type"]
+        wait = (client.stick_bucket if kind == "stick" else client.command_bucket).take()
+        if wait > 0:
+            self.refused += 1
+            self.rate_limited += 1
+            rate, burst = self.cfg.stick_rate if kind == "stick" else self.cfg.command_rate
+            if kind != "stick":
+                self.log_command(client, msg, "refused: rate limited")
+            await self._send(client, {"type": "error", "code": 429, "message":
+                                      f"rate limited (429): at most {rate:g} {'stick messages' if kind == 'stick' else 'commands'} "
+                                      f"per second, {burst:g} at once; this {kind} was ignored, retry in {wait:.1f} s"})
+            return
         if kind == "take_control":
             if self.controller is None or self.controller == client.id:
                 self.controller = client.id

@@ -3,9 +3,8 @@
 const MODES = {0: "0 bottom flow", 1: "1 bottom + front flow", 2: "2 TeraRanger + front flow",
                3: "3 front flow only", "-1": "-1 alarm: TeraRanger only", "-2": "-2 alarm: no sensors"};
 const $ = (id) => document.getElementById(id);
-const params = new URLSearchParams(location.search);
-const token = params.get("token");
-const wsUrl = (location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws" + (token ? "?token=" + encodeURIComponent(token) : "");
+// No token here: the session cookie (HttpOnly, set by POST /login) goes with the WebSocket handshake.
+const wsUrl = (location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws";
 let ws = null, role = "watch", limits = {vx: 1, vy: 1, vz: 0.5, yaw_rate: 0.8};
 const keys = new Set();
 let stateCount = 0, rateT0 = performance.now();
@@ -126,6 +125,17 @@ function connect() {
     else if (m.type === "role") setRole(m.role);
     else if (m.type === "error") { $("error").textContent = m.message; window.basestation.errors.push(m.message); }
   };
-  ws.onclose = () => { setRole("watch"); $("role").textContent = "disconnected: retrying"; setTimeout(connect, 1000); };
+  let opened = false;
+  ws.onopen = () => { opened = true; };
+  ws.onclose = (ev) => {
+    setRole("watch");
+    if (ev.code === 1008 || !opened) {  // refused (logged out, session gone after a restart): the page shows the login form
+      $("role").textContent = "not logged in: reloading";
+      setTimeout(() => fetch("/", {method: "HEAD", cache: "no-store"}).then((r) => { if (r.status === 401) location.reload(); else setTimeout(connect, 1000); },
+                                                                     () => setTimeout(connect, 1000)), 1000);
+      return;
+    }
+    $("role").textContent = "disconnected: retrying"; setTimeout(connect, 1000);
+  };
 }
 connect();
