@@ -22,6 +22,7 @@ def fly(data: Path, out: Path, wall_seed: int, flight_seed: int | None = None, w
 
     if wall is None:
         wall = build_demo_wall(out / "demo_wall", data, seed=wall_seed)
+    out.mkdir(parents=True, exist_ok=True)
     sc = demo_scenario(wall, out / f"scenario_{flight_seed}.yaml", seed=flight_seed)
     cfg = RunConfig(input=f"fly:{sc}", survey=DEMO_SURVEY, detect=DetectConfig(keyframe_spacing=0.5), report={"pdf": False})
     run_pipeline(out, cfg, log=lambda s: None)

@@ -23,6 +23,7 @@ from cli import run as _run
 from cli import demo as _demo
 from cli import campaign as _campaign
 from cli import import_ as _import
+from cli import compare as _compare
 
 app = typer.Typer(
     cls=VerbosityGroup,  # -q/--quiet and -v/--verbose on the app and on every command
@@ -67,6 +68,7 @@ app.command("run", help=_run.HELP)(_run.run)
 app.command("demo", help=_demo.HELP)(_demo.demo)
 app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
 app.command("import", help=_import.HELP)(_import.import_)
+app.command("compare", help=_compare.HELP)(_compare.compare)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -21,14 +21,20 @@ CORROSION = (100, 60, 40, 20)  # x, y, w, h px -> centroid (119.5, 69.5), 800 px
 CRACK = ((300, 200), (325, 195), (350, 203), (375, 197), (400, 202))  # a meandering crack, about 103 px = 0.52 m (a straight line this long would be a seam)
 
 
-def make_run(root: Path, *, survey: dict | None = None) -> RunStore:
-    rng = np.random.default_rng(0)
+def make_run(root: Path, *, survey: dict | None = None, seed: int = 0, painted: bool = False) -> RunStore:
+    """``painted``: the demo's worn-paint texture (features at every scale, for registering two
+    surveys) instead of blurred noise."""
+    rng = np.random.default_rng(seed)
     store = RunStore(root)
     sweep = root / "input_sweep"
     (sweep / "images").mkdir(parents=True)
     mosaic = np.zeros((270, 520, 4), np.uint8)
     base = (rng.normal(128, 25, (270, 520, 3))).clip(0, 255).astype(np.uint8)
     base = cv2.GaussianBlur(base, (3, 3), 0)
+    if painted:
+        from inspect_pipe.pipeline._demo import paint
+
+        base = paint(270, 520, rng)
     mosaic[:, :, :3] = base
     mosaic[:, :, 3] = 255
     lines = []
