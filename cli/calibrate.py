@@ -7,7 +7,9 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+import cv2
+
+from cli._common import choices, one_line_errors
 from inspect_pipe.capture._calibration import OUTLIER_RULE, Board, calibrate_images, parse_board, write_camera_yaml
 
 HELP = f"""Calibrate a camera from views of a printed chessboard (or a ChArUco board) and write
@@ -37,6 +39,9 @@ Examples:
 Exit 0 when camera.yaml is written; 2 on bad input (unreadable image, images of different
 sizes, the board found in fewer than 3 images), with nothing written.
 """
+
+Pattern = choices("Pattern", ("chessboard", "charuco"))
+Dictionary = choices("Dictionary", sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
 
 
 def _table(cal, out: Path) -> None:
@@ -68,13 +73,13 @@ def calibrate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Camera file to write (OpenCV FileStorage YAML).")],
     board: Annotated[str, typer.Option("--board", help="COLSxROWS: a chessboard's inner corners (ChArUco: squares), e.g. 9x6.")],
     square_m: Annotated[float, typer.Option("--square-m", help="Side of a board square, m.")],
-    pattern: Annotated[str, typer.Option("--pattern", help="chessboard or charuco.")] = "chessboard",
+    pattern: Annotated[Pattern, typer.Option("--pattern", help="Calibration target.")] = Pattern.chessboard,
     marker_m: Annotated[Optional[float], typer.Option("--marker-m", help="ChArUco: side of a marker, m.")] = None,
-    dictionary: Annotated[str, typer.Option("--dictionary", help="ChArUco: OpenCV ArUco dictionary.")] = "DICT_6X6_250",
+    dictionary: Annotated[Dictionary, typer.Option("--dictionary", help="ChArUco: OpenCV ArUco dictionary.")] = Dictionary("DICT_6X6_250"),
     name: Annotated[str, typer.Option("--name", help="Camera name written into the file.")] = "camera",
 ) -> None:
     cols, rows = parse_board(board)
-    b = Board(cols, rows, square_m, kind=pattern, marker_m=marker_m, dictionary=dictionary)
+    b = Board(cols, rows, square_m, kind=pattern.value, marker_m=marker_m, dictionary=dictionary.value)
     cal = calibrate_images(images, b, name=name)
     write_camera_yaml(out, cal)
     _table(cal, out)
