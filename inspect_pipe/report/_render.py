@@ -254,8 +254,7 @@ def render_html(report, assets: dict) -> str:
     from ._screen import confirmation_text
 
     return tpl.render(r=report, assets=assets, frames_text=_frames_text, cov=report.coverage.to_json(),
-                      confirmation=confirmation_text(report.params.register),
-                      trace_json=json.dumps({k: v for k, v in report.trace.items() if k not in ("screening", "precision")}, indent=1, default=str))  # both shown above the register
+                      confirmation=confirmation_text(report.params.register))  # the JSON record stays in defects.json
 
 
 def render_pdf(html: str, base: Path, path: Path) -> str | None:

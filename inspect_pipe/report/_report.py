@@ -183,7 +183,8 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "m_per_px": wall.m_per_px,
         "checksums_sha256": inp.checksums,
         "survey_plan": None if plan is None else plan.to_json(),
-        "limitations": _limitations(sweep, plan),
+        "limitations": _limitations(sweep, plan, ((doc.get("input") or {}).get("camera") or {}).get("calibration")),
+        "area_imaging": area_imaging(rating.areas, views, wall, sweep),
         "precision": precision.to_json(),
         "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
                       "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
@@ -193,14 +194,43 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
     return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
 
 
-def _limitations(sweep, plan) -> list[str]:
-    """What the inputs lacked, as the report states it (doctor --sweep's findings that failed)."""
+def area_imaging(areas, views, wall: WallMap, sweep) -> dict[str, dict]:
+    """Per rating area, how it was imaged (the survey record's stand-off and achieved resolution):
+    over the placed frames whose footprint holds the area's centre, the median distance to the wall
+    (forward range, less the camera's offset) and the median wall millimetres per frame pixel at
+    the centre (the frame -> wall map's Jacobian)."""
+    out: dict[str, dict] = {}
+    cam_dx = float(sweep.meta.cam_to_body.t[0]) if sweep is not None else 0.0
+    for a in areas:
+        cm = wall.to_mosaic(np.array([[(a.u0_m + a.u1_m) / 2, (a.v0_m + a.v1_m) / 2]]))[0]
+        res, dist = [], []
+        for v in views:
+            q = np.linalg.solve(v.H, np.array([cm[0], cm[1], 1.0]))
+            if abs(q[2]) < 1e-12:
+                continue
+            x, y = q[:2] / q[2]
+            if not (0 <= x < v.size_wh[0] and 0 <= y < v.size_wh[1]):
+                continue
+            pts = np.array([[x - 0.5, y, 1], [x + 0.5, y, 1], [x, y - 0.5, 1], [x, y + 0.5, 1]]) @ v.H.T
+            wm = wall.to_wall(pts[:, :2] / pts[:, 2:3])
+            res.append(1000 * np.sqrt(abs(np.linalg.det(np.c_[wm[1] - wm[0], wm[3] - wm[2]]))))
+            if sweep is not None and 0 <= v.index < len(sweep.frames) and sweep.frames[v.index].dist_front_m is not None:
+                dist.append(sweep.frames[v.index].dist_front_m - cam_dx)
+        out[a.name] = {"frames": len(res), "mm_per_px": round(float(np.median(res)), 2) if res else None,
+                       "standoff_m": round(float(np.median(dist)), 2) if dist else None}
+    return out
+
+
+def _limitations(sweep, plan, calibration: dict | None = None) -> list[str]:
+    """What the inputs lacked, as the report states it (doctor --sweep's findings that failed).
+    ``calibration``: of the camera the mosaic used (mosaic.json input.camera; --camera)."""
     if sweep is None:
-        return ["no sweep (a plain image folder): no vehicle state, no calibration, no survey plan; positions are "
+        return [f"no sweep (a plain image folder): no vehicle state, {'' if calibration else 'uncalibrated camera, '}no survey plan; positions are "
                 "metres from the mosaic's lower-left corner at the given scale"]
     from inspect_pipe.pipeline._readiness import sweep_readiness
 
-    return [f"{f.what}: {f.detail}; {f.consequence}" for f in sweep_readiness(sweep, plan) if not f.ok]
+    return [f"{f.what}: {f.detail}; {f.consequence}" for f in sweep_readiness(sweep, plan)
+            if not f.ok and not (calibration and f.what == "calibration")]
 
 
 def survey_plan_of(sweep, override=None):
