@@ -126,3 +126,21 @@ def test_stage_progress_draws_rich_bars_on_a_terminal_and_nothing_under_quiet(mo
     bar("register", 3, 13)
     bar.close()
     assert buf.getvalue() == ""
+
+
+def test_verbosity_sets_what_the_librarys_loggers_show(capsys):
+    lg = logging.getLogger("inspect_pipe.capture.sources.v4l2")
+    try:
+        _common.set_verbosity(1)
+        lg.debug("shown-debug-line")
+        _common.set_verbosity(0)
+        lg.debug("hidden-debug-line")
+        lg.info("shown-info-line")
+        _common.set_verbosity(-1)
+        lg.info("hidden-info-line")
+        lg.warning("shown-warning-line")
+    finally:
+        _common.set_verbosity(0)
+    err = capsys.readouterr().err
+    assert "shown-debug-line" in err and "shown-info-line" in err and "shown-warning-line" in err
+    assert "hidden-debug-line" not in err and "hidden-info-line" not in err

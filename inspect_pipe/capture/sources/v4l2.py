@@ -11,6 +11,7 @@ that to exercise this code path where no ``/dev/video*`` exists.
 from __future__ import annotations
 
 import glob
+import logging
 import math
 import re
 import shutil
@@ -25,6 +26,8 @@ from inspect_pipe.capture._clock import Clock
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture._source import Grab, SourceInfo, SourceLost, default_cam_to_body
 from inspect_pipe.errors import InputError
+
+log = logging.getLogger(__name__)  # -v shows its debug lines
 
 __all__ = ["CameraMode", "DriverClock", "OpenCVSource", "V4L2Source", "camera_modes", "device_name", "list_v4l2_devices",
            "parse_list_formats_ext", "probe_modes", "v4l2_backend_available"]
@@ -61,6 +64,8 @@ class DriverClock:
     def to_host(self, stamp_s: float, arrival_s: float) -> float:
         if self.same_clock is None:
             self.same_clock = abs(arrival_s - stamp_s) < self.SAME_CLOCK_WITHIN_S
+            log.debug("driver stamps %s", "on the host's monotonic clock: used as they are" if self.same_clock
+                      else f"{arrival_s - stamp_s:+.3f} s from the host clock: mapped by the least arrival delay")
         if self.same_clock:
             return stamp_s
         d = arrival_s - stamp_s
@@ -137,6 +142,11 @@ class OpenCVSource:
             per = fps / self.rate_hz if fps and fps > 0 and self.rate_hz else 1.0
             self.buffers = int(min(8, max(2, math.ceil(per - 1e-9) + 1)))
         cap.set(cv2.CAP_PROP_BUFFERSIZE, self.buffers)  # before the first grab starts the stream
+        log.debug("%s: camera at %s fps (its own rate), %d driver buffers, decimated to %s Hz", self.device,
+                  f"{fps:g}" if fps else "an unreported", self.buffers, self.rate_hz or "every frame")
+        if fps and self.rate_hz and fps < self.rate_hz:
+            log.warning("%s: the camera gives %g fps, fewer than the %g Hz asked: deadlines without a new frame are skipped",
+                        self.device, fps, self.rate_hz)
         self._cap = cap
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         cam = CameraModel.from_hfov(w, h, self.hfov_deg, name="uncalibrated")

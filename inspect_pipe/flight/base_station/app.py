@@ -33,6 +33,7 @@ import datetime as _dt
 import hmac
 import itertools
 import json
+import logging
 import math
 import secrets
 import threading
@@ -48,6 +49,8 @@ from inspect_pipe.flight.base_station.realtime import OperatorInbox, RealTimeFli
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
 
 __all__ = ["BaseStation", "StationConfig", "TokenBucket", "is_loopback", "parse_client_message"]
+
+log = logging.getLogger(__name__)  # logins and refusals at info (-v); never a token
 
 MAX_MESSAGE_BYTES = 1024
 BUTTONS = {b.value: b for b in Button}
@@ -208,6 +211,7 @@ class BaseStation:
             self._log = None
 
     def _log_event(self, address: str, what: str, outcome: str) -> None:
+        log.info("%s from %s: %s", what, address, outcome)
         if self._log is not None:
             rec = {"t": _dt.datetime.now().isoformat(timespec="milliseconds"), "client": None, "address": address,
                    "command": {"type": what}, "outcome": outcome}
