@@ -16,7 +16,7 @@ import numpy as np
 import typer
 from typer.core import TyperGroup
 
-from cli._common import one_line_errors
+from cli._common import StageProgress, one_line_errors
 from inspect_pipe.errors import InputError
 from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
@@ -201,10 +201,13 @@ class _Outputs:
                              "(listed above and in defects.json)", f"{len(self.images)} other images written")
 
 
-def _detect_each(files: list[Path], outs: _Outputs, eng, kinds: tuple[str, ...], tile_px: int) -> None:
+def _detect_each(files: list[Path], outs: _Outputs, eng, kinds: tuple[str, ...], tile_px: int, progress=None) -> None:
     """Read, detect, write, ``eng.batch`` images at a time (a sweep's equal-size frames share one
-    network call); an image that cannot be read or detected is recorded and the others go on."""
+    network call); an image that cannot be read or detected is recorded and the others go on.
+    ``progress(stage, done, total)`` after each batch."""
     for start in range(0, len(files), eng.batch):
+        if progress is not None:
+            progress("detect", start, len(files))
         ready = []  # (path, name, img, valid)
         for path in files[start:start + eng.batch]:
             name = outs.name_for(path)
@@ -255,7 +258,12 @@ def run(
     eng.check_kinds(kinds)
     files = list_inputs(input)  # bad input fails before anything is created
     outs = _Outputs(out, len(files))
-    _detect_each(files, outs, eng, kinds, tile_px)
+    bar = StageProgress()  # rich bars on a terminal; none under -q
+    try:
+        _detect_each(files, outs, eng, kinds, tile_px, progress=bar)
+        bar("detect", len(files), len(files))
+    finally:
+        bar.close()
     outs.finish(eng.model_doc(kinds), kinds)
 
 

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import note, one_line_errors
 
 HELP = """Import footage from any drone (a folder of images or a video) plus the autopilot's flight log
 into a sweep (inspect_pipe.sweep/1), as capture writes it: mosaic, run and report read it unchanged.
@@ -49,7 +49,7 @@ def import_(
     from inspect_pipe.importer import import_footage
 
     res = import_footage(frames, log, out, camera_path=camera, time_offset_s=time_offset, video_start=video_start,
-                         on_note=lambda m: typer.echo(f"note: {m}", err=True))
+                         on_note=lambda m: note(f"note: {m}"))
     a = res.alignment
     conf = "" if a.confidence is None else f", correlation {a.correlation:.3f}, confidence {a.confidence:.2f}"
     typer.echo(f"camera clock offset {a.camera_clock_offset_s:+.3f} s ({a.method}{conf})")
