@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import threading
 from pathlib import Path
@@ -10,7 +11,8 @@ from typing import Annotated, Optional
 import typer
 
 from cli._common import SURVEY_HELP, choices, console, fail, load_plan, one_line_errors, progress_enabled
-from inspect_pipe.capture import SOURCE_SPECS, CaptureConfig, MonotonicClock, Progress, open_source, run_capture
+from inspect_pipe.capture import SOURCE_SPECS, CaptureConfig, MonotonicClock, Progress, load_camera, open_source, run_capture
+from inspect_pipe.capture._calibration import scaled_note
 from inspect_pipe.capture._vehicle_feed import open_vehicle_feed
 from inspect_pipe.errors import InputError
 
@@ -35,6 +37,15 @@ With --vehicle each frame carries the autopilot's state at mid-exposure (LOCAL_P
 ATTITUDE, DISTANCE_SENSOR by orientation, landed state), interpolated between messages on a clock
 mapped with TIMESYNC; if the link dies, frames keep coming with state null and the live line
 counts them. --survey stores the survey plan in the sweep (docs/ship.md).
+
+--camera camera.yaml (from `inspect-pipe calibrate`, or a ROS camera_info YAML) records the
+calibrated camera in sweep.json, with where it came from (camera.calibration: source, sha256,
+rms_px); without it a real camera is an uncalibrated 60 deg guess and sweep.json says so. A
+simulated source renders through the calibrated lens. A calibration of another resolution is
+scaled when the aspect ratio is the same (and said so), refused otherwise (exit 2, nothing
+written).
+
+  inspect-pipe capture --source v4l2:/dev/video0 --camera camera.yaml -o out/sweep1
 
   inspect-pipe capture --source replay:out/sweep1 -o out/sweep1_copy
 
@@ -87,6 +98,7 @@ def capture(
     frame_spacing: Annotated[Optional[float], typer.Option("--frame-spacing", help="survey: ship frame spacing, m")] = None,
     reference_frame: Annotated[Optional[str], typer.Option("--reference-frame", help="survey: ship frame number at the wall's left edge")] = None,
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="vehicle state for every frame: mavlink:URL (a PX4/ArduPilot autopilot; e.g. mavlink:udp:0.0.0.0:14550) or sim:SCENARIO.yaml; interpolated at mid-exposure")] = None,
+    camera: Annotated[Optional[Path], typer.Option("--camera", help="camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info); default: the source's own model (a 60 deg guess for real cameras)")] = None,
     survey_plan: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " Stored in the sweep.")] = None,
 ) -> None:
     if not (0 < rate <= 200):
@@ -101,7 +113,8 @@ def capture(
     if not (0 < speed <= 1000):
         raise fail(f"--speed {speed}: must be in (0, 1000]")
     plan = load_plan(survey_plan)
-    src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure, speed=speed)
+    cam = load_camera(camera) if camera is not None else None
+    src, clock, time_base = open_source(source, clock=MonotonicClock(), rate_hz=rate, exposure_s=exposure, speed=speed, camera=cam)
     feed, extra = None, {}
     if vehicle is not None:
         if time_base == "simulation_s":
@@ -117,7 +130,7 @@ def capture(
         rate = src.scenario.camera.fps if rate == 10.0 else rate
     cfg = CaptureConfig(rate_hz=rate, duration_s=duration, max_frames=frames, image_format=image_format,
                         survey=survey, time_base=time_base, wait_for_writer=time_base == "simulation_s",
-                        survey_plan=None if plan is None else plan.to_json())
+                        survey_plan=None if plan is None else plan.to_json(), camera=cam)
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     live = _LiveLine()
@@ -132,6 +145,10 @@ def capture(
             feed.close()
     if res is None:
         raise typer.Exit(130)
+    if cam is not None and (out / "sweep.json").is_file():
+        note = scaled_note(json.loads((out / "sweep.json").read_text()).get("camera"))
+        if note:
+            typer.echo(note, err=True)
     jit = res.jitter_p99_s() * 1000
     typer.echo(
         f"{out}: {res.frames_written} frames, {res.reason.value}{': ' + res.detail if res.detail else ''}; "

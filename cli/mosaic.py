@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import typer
 
 from cli._common import SURVEY_HELP, StageProgress, choices, fail, load_plan, one_line_errors
-from inspect_pipe.mosaic import DETECTORS, FolderSource, MosaicParams, RegisterParams, is_sweep, run_mosaic, run_mosaic_sweep
+from inspect_pipe.capture import load_camera
+from inspect_pipe.capture._calibration import scaled_note
+from inspect_pipe.mosaic import DETECTORS, MosaicParams, RegisterParams, is_sweep, run_mosaic_folder, run_mosaic_sweep
 
 HELP = """Mosaic a sweep (or a folder of overlapping images, sorted by name) into one seamless image.
 
@@ -19,11 +22,19 @@ OUT/mosaic_group<k>.png per further group. A sweep (a directory with sweep.json,
 `capture` or `fly --sweep`) is undistorted and rectified with its camera model, and mosaic.json
 also gets m_per_px and wall_from_mosaic (mosaic pixel -> wall metres u, v).
 
+--camera camera.yaml (from `inspect-pipe calibrate`, or a ROS camera_info YAML) gives the
+calibrated K and distortion: a folder's images are undistorted and the mosaic rectified with it;
+a sweep's own camera model is overridden. A calibration of another resolution is scaled when the
+aspect ratio is the same (and said so), refused otherwise. mosaic.json records the camera used
+(input.camera, with its calibration's source and sha256).
+
 Examples:
 
   inspect-pipe mosaic ../shared/data/mosaic/synth_rust_sweep/frames -o out/rust
 
-  inspect-pipe mosaic frames/ -o out/m --focal-px 618   # calibrated camera: metric rectification
+  inspect-pipe mosaic frames/ -o out/m --focal-px 618   # known focal length: metric rectification
+
+  inspect-pipe mosaic frames/ -o out/m --camera camera.yaml   # calibrated camera: undistorted, rectified
 
   inspect-pipe mosaic out/demo/sweep -o out/demo/mosaic   # a sweep: metric, placed on the wall
 
@@ -46,24 +57,32 @@ def mosaic(
     focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known: rectifies the mosaic to the wall plane."),
     seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
     verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
+    camera: Path = typer.Option(None, "--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): K and distortion, over a sweep's own."),
     survey: Path = typer.Option(None, "--survey", help=SURVEY_HELP + " A sweep: the plan's wall and take-off tie place the mosaic on that wall (over the plan stored in the sweep)."),
 ) -> None:
     detector = detector.value
     plan = load_plan(survey)
     if focal_px < 0:
         raise fail(f"--focal-px {focal_px}: must be positive")
+    if focal_px and camera is not None:
+        raise fail("--focal-px and --camera: give one (the camera file has the focal length)")
+    cam = load_camera(camera) if camera is not None else None
     params = MosaicParams(register=RegisterParams(detector=detector, focal_px=focal_px or None, seed=seed))
     progress = StageProgress()  # rich bars on a terminal; none under -q
     t0 = time.monotonic()
     if is_sweep(input):  # camera model and vehicle states come with it
-        result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify, survey_plan=plan)
+        result = run_mosaic_sweep(input, out, params=params, progress=progress, verify=verify, survey_plan=plan, camera=cam)
     else:
         if verify:
             raise fail(f"{input}: --verify needs a sweep directory (its COMPLETE marker holds the checksums)")
         if plan is not None:
             raise fail(f"{input}: --survey needs a sweep directory (a plain folder has no vehicle positions to place on the wall)")
-        result = run_mosaic(FolderSource(input), out, params=params, progress=progress)
+        result = run_mosaic_folder(input, out, params=params, progress=progress, camera=cam)
     progress.close()
+    if cam is not None and (out / "mosaic.json").is_file():
+        used = (json.loads((out / "mosaic.json").read_text()).get("input") or {}).get("camera") or {}
+        if scaled_note(used):
+            typer.echo(scaled_note(used), err=True)
     n = result.n_input
     unplaced = len(result.registration.unplaced)
     typer.echo(

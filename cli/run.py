@@ -9,6 +9,7 @@ import typer
 
 from cli._common import SURVEY_HELP, StageProgress, choices, console, load_plan, note, one_line_errors, progress_enabled
 from inspect_pipe._files import write_json
+from inspect_pipe.capture import load_camera
 from cli.detect import DEFAULT, ENGINE_HELP, Engine, Kind
 from inspect_pipe.errors import InputError
 from inspect_pipe.pipeline import STEP_NAMES
@@ -41,6 +42,11 @@ saliency, the paper's saliency-and-Bayes detector; fused, both mixed.
 Another engine than the last run's redoes detect and report; the report
 names the engine and model version.
 
+--camera camera.yaml (from `inspect-pipe calibrate`, or a ROS camera_info YAML): the mosaic
+undistorts and rectifies with it, over a sweep's own camera model; a fly: input's simulated
+camera renders through it. A changed camera file redoes capture (fly:) and mosaic. Without
+one, a sweep that records no calibration gets a warning and the report says "uncalibrated".
+
 Examples:
 
   inspect-pipe run out/sweep1 -o out/run1
@@ -52,6 +58,8 @@ Examples:
   inspect-pipe run out/sweep1 -o out/run1 --rerun-from report --scheme MSC.1/Circ.1399
 
   inspect-pipe run out/sweep1 -o out/run1 --engine saliency     (the paper's detector)
+
+  inspect-pipe run frames/ -o out/run2 --camera camera.yaml --m-per-px 0.002
 """
 
 
@@ -60,7 +68,7 @@ RichProgress = StageProgress  # the name demo and older code import
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
                  m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
-                 engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None):
+                 engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None, camera=None):
     from inspect_pipe.pipeline import DetectConfig, RunConfig
     from inspect_pipe.report import SCHEMES
 
@@ -74,7 +82,8 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
         report["m_per_px"] = m_per_px
     return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine),
                      report=report, report_out=str(report_out) if report_out else None, verify=verify,
-                     survey_plan=survey_plan.to_json() if survey_plan is not None else None)
+                     survey_plan=survey_plan.to_json() if survey_plan is not None else None,
+                     camera=camera.to_json() if camera is not None else None)
 
 
 def check_engine(dc) -> None:
@@ -85,14 +94,15 @@ def check_engine(dc) -> None:
     load_engine(dc.engine, dc.model).check_kinds(dc.kinds)
 
 
-def warn_missing(sweep_dir: Path, plan, echo=None) -> None:
+def warn_missing(sweep_dir: Path, plan, echo=None, camera=None) -> None:
     """One warning line per piece the sweep lacks for a report in metres and ship terms
-    (``doctor --sweep`` says the same at length); the report lists them as limitations."""
+    (``doctor --sweep`` says the same at length); the report lists them as limitations.
+    ``camera`` (--camera) supplies the calibration a sweep may lack."""
     from inspect_pipe.capture import read_sweep
     from inspect_pipe.pipeline._readiness import sweep_readiness
 
     for f in sweep_readiness(read_sweep(sweep_dir), plan):
-        if not f.ok:
+        if not f.ok and not (camera is not None and f.what == "calibration"):
             (echo or note)(f"warning: {sweep_dir}: {f.what}: {f.detail}")
 
 
@@ -126,21 +136,26 @@ def run(
     engine: Annotated[Engine, typer.Option("--engine", help="Detect step: " + ENGINE_HELP)] = DEFAULT,
     verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
     survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP)] = None,
+    camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): the simulated camera of fly: inputs, and K and distortion for the mosaic (over a sweep's own).")] = None,
 ) -> None:
     from inspect_pipe.pipeline import input_kind, run_many, run_pipeline
 
     plan = load_plan(survey)
+    if camera is not None and focal_px:
+        raise InputError("--focal-px", "given with --camera", "give one: the camera file has the focal length")
+    cam = load_camera(camera) if camera is not None else None
 
     kinds, scheme = kind.value, scheme.value
     rerun_from = rerun_from.value if rerun_from is not None else None
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
-                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan) for s in inputs]
+                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan,
+                         camera=cam) for s in inputs]
     check_engine(cfgs[0].detect)
     for spec in inputs:
         if input_kind(spec) == "sweep":
-            warn_missing(Path(spec), plan)
+            warn_missing(Path(spec), plan, camera=cam)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
         try:

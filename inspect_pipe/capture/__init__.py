@@ -14,6 +14,7 @@ Reading a sweep (what the mosaicer uses)::
 
 from inspect_pipe.capture._clock import Clock, ManualClock, MonotonicClock
 from inspect_pipe.capture._geometry import CameraModel, Pose, wall_to_frame_homography
+from inspect_pipe.capture._calibration import fit_camera, load_camera
 from inspect_pipe.capture._open import SOURCE_SPECS, Backend, backends, open_source
 from inspect_pipe.capture._scheduler import RateScheduler, Tick
 from inspect_pipe.capture._service import CaptureConfig, CaptureResult, Progress, StopReason, run_capture
@@ -61,6 +62,8 @@ __all__ = [
     "VehicleState",
     "WallTextureInfo",
     "backends",
+    "fit_camera",
+    "load_camera",
     "open_source",
     "read_sweep",
     "run_capture",

@@ -41,6 +41,7 @@ __all__ = [
     "fit_camera",
     "load_camera",
     "parse_board",
+    "scaled_note",
     "write_camera_yaml",
 ]
 
@@ -427,13 +428,14 @@ def load_camera(path: str | Path) -> CameraModel:
     return _load_ros(path, text)
 
 
-def fit_camera(cam: CameraModel, width: int, height: int, *, where: str = "--camera", frames: str = "the frames") -> CameraModel:
+def fit_camera(cam: CameraModel, width: int, height: int, *, where: str | None = None, frames: str = "the frames") -> CameraModel:
     """``cam`` for frames of ``width`` x ``height``: itself when the sizes agree; scaled (focal
     lengths and principal point; distortion is in normalised coordinates and stays) when only the
     resolution differs with the same aspect ratio, as a camera binning or resizing its sensor;
     :class:`InputError` otherwise."""
     if (cam.width, cam.height) == (width, height):
         return cam
+    where = where or str((cam.calibration or {}).get("source") or "--camera")
     if cam.width * height != cam.height * width:
         raise InputError(where, f"calibrated at {cam.width}x{cam.height}, but {frames} are {width}x{height} (another aspect ratio)",
                          "calibrate the camera at the resolution it captures at")
@@ -447,3 +449,14 @@ def fit_camera(cam: CameraModel, width: int, height: int, *, where: str = "--cam
     calib = dict(cam.calibration or {})
     calib["scaled_from_wh"] = [cam.width, cam.height]
     return replace(cam, K=K, width=int(width), height=int(height), calibration=calib)
+
+
+def scaled_note(camera_json: dict | None) -> str:
+    """The line saying a calibration was scaled to the frames' size (``CameraModel.to_json()``
+    of the camera used), or ``""``."""
+    cal = (camera_json or {}).get("calibration") or {}
+    src = cal.get("scaled_from_wh")
+    if not src:
+        return ""
+    return (f"note: {cal.get('source')} was calibrated at {src[0]}x{src[1]}; scaled to the frames' "
+            f"{camera_json.get('width')}x{camera_json.get('height')} (same aspect ratio)")

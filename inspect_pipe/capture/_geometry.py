@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "CameraModel",
     "Pose",
+    "SIM_CALIBRATION",
     "R_BODY_CAM_FORWARD",
     "rotation_from_rpy",
     "rpy_from_rotation",
@@ -28,6 +29,10 @@ __all__ = [
 
 # A forward-looking camera: optical axis = body X, image right = -body Y, image down = -body Z.
 R_BODY_CAM_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+# What a simulated camera's ``calibration`` says: its model is exact, not estimated.
+SIM_CALIBRATION = {"source": "simulator", "sha256": None, "rms_px": 0.0, "note": "the simulated camera's exact model"}
 
 
 @dataclass(frozen=True)

@@ -13,9 +13,12 @@ __all__ = ["Backend", "SOURCE_SPECS", "backends", "open_source"]
 SOURCE_SPECS = "v4l2:/dev/videoN | ids[:SERIAL] | replay:PATH | sim:SCENARIO"
 
 
-def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: float | None = None, speed: float = 1.0):
+def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: float | None = None, speed: float = 1.0,
+                camera=None):
     """(source, clock to run it on, time base). A simulated source runs on its own simulated
-    clock, faster than real time; every other source on ``clock``."""
+    clock, faster than real time; every other source on ``clock``. ``camera`` (a calibrated
+    :class:`CameraModel`): the simulated camera renders through it; other sources get it from
+    :class:`CaptureConfig` ``camera``."""
     kind, _, arg = spec.partition(":")
     if kind == "v4l2":
         from inspect_pipe.capture.sources.v4l2 import V4L2Source
@@ -43,7 +46,7 @@ def open_source(spec: str, *, clock: Clock, rate_hz: float = 10.0, exposure_s: f
         if not arg:
             raise InputError(spec, "no scenario", "e.g. sim:scenarios/inspection_sweep_wall.yaml")
         sim_clock = ManualClock(0.0)
-        return SimSource(load_scenario(arg), clock=sim_clock), sim_clock, "simulation_s"
+        return SimSource(load_scenario(arg), clock=sim_clock, camera=camera), sim_clock, "simulation_s"
     raise InputError(f"--source {spec}", "unknown source", f"one of {SOURCE_SPECS}")
 
 

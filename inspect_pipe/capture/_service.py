@@ -8,7 +8,7 @@ import enum
 import shutil
 import sys
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -16,6 +16,7 @@ import numpy as np
 
 import inspect_pipe
 from inspect_pipe.capture._clock import Clock
+from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture._exif import ImageMeta
 from inspect_pipe.capture._scheduler import RateScheduler
 from inspect_pipe.capture._source import FrameSource, Grab, SourceInfo, SourceLost
@@ -50,6 +51,7 @@ class CaptureConfig:
     time_base: str = "host_monotonic_s"  # or "simulation_s" with a simulated clock
     overwrite: bool = False
     wait_for_writer: bool = False  # simulated time only: wait for the writer instead of dropping
+    camera: CameraModel | None = None  # --camera: the calibrated model recorded instead of the source's (fit to its frame size)
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,11 @@ def run_capture(
     a lost camera, a write failure or ``stop``. The sweep is readable whatever the reason."""
     info = source.open()
     try:
+        if config.camera is not None:  # checked against the frame size before anything is written
+            from inspect_pipe.capture._calibration import fit_camera
+
+            info = replace(info, camera=fit_camera(config.camera, info.camera.width, info.camera.height,
+                                                   frames=f"the frames of {info.description}"))
         extra = dict((sweep_extra() if callable(sweep_extra) else sweep_extra) or {})
         if hasattr(source, "sweep_extra"):  # a simulated source describes its world
             extra.update(source.sweep_extra(Path(sweep_dir)))

@@ -31,7 +31,7 @@ import numpy as np
 import inspect_pipe
 from inspect_pipe.capture._exif import ImageMeta, embed
 from inspect_pipe._files import atomic_write
-from inspect_pipe.capture._geometry import CameraModel, Pose
+from inspect_pipe.capture._geometry import SIM_CALIBRATION, CameraModel, Pose
 from inspect_pipe.errors import InputError
 
 __all__ = [
@@ -283,7 +283,10 @@ def _meta(path: Path, doc: dict) -> SweepMeta:
         raise InputError(where, "field 'camera': K must be 3x3 numbers and width/height positive integers")
     if not isinstance(dist, list) or not all(_num(d) is not None for d in dist):
         raise InputError(where, "field 'camera.dist': not a list of numbers")
-    camera = CameraModel(K, np.asarray(dist, float), w, h, str(cam.get("name", "camera")))
+    calibration = cam.get("calibration") if isinstance(cam.get("calibration"), dict) else None
+    if calibration is None and "calibration" not in cam and (doc.get("source") or {}).get("kind") == "sim":
+        calibration = dict(SIM_CALIBRATION)  # written before sweeps recorded it: the simulated camera is exact
+    camera = CameraModel(K, np.asarray(dist, float), w, h, str(cam.get("name", "camera")), calibration=calibration)
     ctb = doc.get("cam_to_body") or {}
     R, t = _mat(ctb.get("R")), _vec(ctb.get("t_m"), 3)
     pose = Pose(R if R is not None else np.eye(3), np.asarray(t if t is not None else (0.0, 0.0, 0.0)))

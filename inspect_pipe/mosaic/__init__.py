@@ -10,6 +10,7 @@ from ._features import DETECTORS, detect_features
 from ._homography import MatchParams, match_pair
 from ._io import FolderSource, read_image
 from ._mosaic import FORMAT, MosaicOutput, MosaicParams, run_mosaic, run_mosaic_sweep
+from ._folder_input import UndistortedFolderSource, run_mosaic_folder
 from ._sweep_input import SweepSource, WallGeometry, is_sweep, wall_geometry
 from ._register import FrameError, FrameSource, Group, Registration, RegisterParams, register
 
@@ -17,5 +18,5 @@ __all__ = [
     "AlignParams", "BlendParams", "DETECTORS", "FORMAT", "FolderSource", "FrameError", "FrameSource",
     "Group", "MatchParams", "MosaicOutput", "MosaicParams", "Registration", "RegisterParams",
     "SweepSource", "WallGeometry", "detect_features", "is_sweep", "match_pair", "read_image", "register",
-    "render", "run_mosaic", "run_mosaic_sweep", "wall_geometry",
+    "render", "run_mosaic", "run_mosaic_folder", "run_mosaic_sweep", "UndistortedFolderSource", "wall_geometry",
 ]

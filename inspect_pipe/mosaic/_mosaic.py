@@ -184,8 +184,10 @@ def run_mosaic_sweep(
     progress: Callable[[str, int, int], None] | None = None,
     verify: bool = False,
     survey_plan=None,
+    camera=None,
 ) -> MosaicOutput:
-    """Mosaic a sweep: frames undistorted and rectified with the sweep's camera, and
+    """Mosaic a sweep: frames undistorted and rectified with the sweep's camera (``camera``, a
+    calibrated ``CameraModel`` from ``--camera``, overrides it; fitted to the frames' size), and
     ``m_per_px`` / ``wall_from_mosaic`` added to mosaic.json (mosaic.png's frames only).
 
     A sweep cut by a crash (partial last line of frames.jsonl, a COMPLETE that lists more frames
@@ -200,13 +202,19 @@ def run_mosaic_sweep(
     sweep = read_sweep(sweep_dir, verify=verify)
     if survey_plan is not None:  # --survey: the surveyed wall and the take-off tie, over what the sweep stored
         sweep = replace(sweep, meta=replace(sweep.meta, survey_plan=survey_plan))
+    if camera is not None:  # --camera: the calibration over the camera model stored in the sweep
+        from inspect_pipe.capture._calibration import fit_camera
+
+        fitted = fit_camera(camera, sweep.meta.width, sweep.meta.height, frames=f"the frames of {sweep_dir}")
+        sweep = replace(sweep, meta=replace(sweep.meta, camera=fitted))
     if not sweep.frames:
         why = f" ({sweep.problems[0]})" if sweep.problems else ""
         raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
     source = SweepSource(sweep)
     reg_params = replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px)
     params = replace(params, register=reg_params)
-    extra: dict = {"input": {"kind": "sweep", "path": str(sweep_dir), "complete": sweep.complete, "n_frames": len(sweep), "verified": verify}}
+    extra: dict = {"input": {"kind": "sweep", "path": str(sweep_dir), "complete": sweep.complete, "n_frames": len(sweep), "verified": verify,
+                             "camera": sweep.meta.camera.to_json()}}
     if sweep.problems:
         extra["input"]["skipped"] = [str(p) for p in sweep.problems]
     result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)

@@ -54,6 +54,17 @@ class RunConfig:
     threads: int = 0  # threads for one sweep (0: every core); results do not depend on it
     verify: bool = False  # mosaic step: check the sweep's files against COMPLETE's sha256 (differing frames unplaced)
     survey_plan: dict | None = None  # --survey: the survey plan (inspect_pipe.ship), stored in a captured sweep, used by mosaic and report
+    camera: dict | None = None  # --camera: the calibrated CameraModel.to_json() (K, dist, calibration source and sha256)
+
+    def camera_model(self):
+        """The --camera calibration as a ``CameraModel`` (None without one)."""
+        if self.camera is None:
+            return None
+        from inspect_pipe.capture import CameraModel
+
+        c = self.camera
+        return CameraModel(np.asarray(c["K"], float), np.asarray(c["dist"], float), int(c["width"]), int(c["height"]),
+                           str(c.get("name", "camera")), calibration=c.get("calibration"))
 
     def plan(self):
         """The survey plan as ``inspect_pipe.ship.SurveyPlan`` (None without one)."""
@@ -110,10 +121,10 @@ def run_capture_step(store: RunStore, cfg: RunConfig, progress: Progress | None)
         progress("fly", 0, 1)
     run_scenario(sc, on_tick=rec)
     clock = ManualClock(0.0)
-    src = SimSource(sc, trajectory=rec.feed, clock=clock)
+    src = SimSource(sc, trajectory=rec.feed, clock=clock, camera=cfg.camera_model())
     n = int(sc.duration_s * sc.camera.fps)
     ccfg = CaptureConfig(rate_hz=sc.camera.fps, time_base="simulation_s", wait_for_writer=True, survey=dict(cfg.survey),
-                         survey_plan=cfg.survey_plan)
+                         survey_plan=cfg.survey_plan, camera=cfg.camera_model())
     res = run_capture(src, store.sweep_dir, clock=clock, config=ccfg,
                       on_progress=(lambda p: progress("capture", min(p.frames, n), n)) if progress else None)
     if res.writer_error:
@@ -134,9 +145,9 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
     params = M.MosaicParams(register=M.RegisterParams(detector=cfg.mosaic_detector, seed=cfg.mosaic_seed, focal_px=cfg.focal_px, workers=cfg.threads))
     if sweep is not None:
         out = M.run_mosaic_sweep(sweep, store.mosaic_dir, params=params, progress=progress, verify=cfg.verify,
-                                 survey_plan=cfg.plan())
+                                 survey_plan=cfg.plan(), camera=cfg.camera_model())
     else:
-        out = M.run_mosaic(M.FolderSource(Path(cfg.input)), store.mosaic_dir, params=params, progress=progress)
+        out = M.run_mosaic_folder(Path(cfg.input), store.mosaic_dir, params=params, progress=progress, camera=cfg.camera_model())
     if not out.H:
         raise InputError(cfg.input, out.problems[0] if out.problems else "no frame could be placed")
     doc = store.load_mosaic_json()
@@ -279,8 +290,8 @@ class Step:
 
 
 STEPS: tuple[Step, ...] = (
-    Step("capture", run_capture_step, capture_done, ("input", "survey", "survey_plan")),
-    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px", "verify", "survey_plan")),
+    Step("capture", run_capture_step, capture_done, ("input", "survey", "survey_plan", "camera")),
+    Step("mosaic", run_mosaic_step, mosaic_done, ("input", "mosaic_detector", "mosaic_seed", "focal_px", "verify", "survey_plan", "camera")),
     Step("detect", run_detect_step, detect_done, ("detect",)),
     Step("report", run_report_step, report_done, ("report", "report_out", "survey_plan")),
 )

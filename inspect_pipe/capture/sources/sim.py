@@ -13,7 +13,7 @@ is the mid-exposure pose that the blur is centred on.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -21,6 +21,7 @@ import numpy as np
 
 from inspect_pipe.capture._clock import ManualClock
 from inspect_pipe.capture._geometry import (
+    SIM_CALIBRATION,
     CameraModel,
     Pose,
     rotation_from_rpy,
@@ -287,8 +288,10 @@ class SimSource:
         clock: ManualClock | None = None,
         params: SimCameraParams | None = None,
         cam_to_body: Pose | None = None,
+        camera: CameraModel | None = None,
     ) -> None:
         self.scenario = scenario
+        self.camera = camera  # a calibrated camera to simulate instead of the scenario's hfov
         self.trajectory = trajectory
         self.clock = clock or ManualClock()
         self.params = params or SimCameraParams(seed=scenario.seed)
@@ -301,14 +304,19 @@ class SimSource:
 
     def open(self) -> SourceInfo:
         sc = self.scenario
+        cam_cfg = sc.camera
+        camera = CameraModel.from_hfov(cam_cfg.width, cam_cfg.height, cam_cfg.hfov_deg, self.params.dist, name="sim")
+        camera = replace(camera, calibration=dict(SIM_CALIBRATION))
+        if self.camera is not None:  # --camera: simulate that lens (scaled to the scenario's frame size if the aspect agrees)
+            from inspect_pipe.capture._calibration import fit_camera
+
+            camera = fit_camera(self.camera, cam_cfg.width, cam_cfg.height, frames="the scenario's camera frames")
         if self.trajectory is None:
             from inspect_pipe.flight.runner import run_scenario
 
             rec = TrajectoryRecorder(sc)
             self.flight_result = run_scenario(sc, on_tick=rec)
             self.trajectory = rec.feed
-        cam_cfg = sc.camera
-        camera = CameraModel.from_hfov(cam_cfg.width, cam_cfg.height, cam_cfg.hfov_deg, self.params.dist, name="sim")
         hold = sc.world.hold
         wall = faced_wall(sc)
         tex = sc.world.texture(wall.wall.sim)
