@@ -133,6 +133,16 @@ def _camera(camera_path: Path | None, footage: Footage) -> CameraModel:
                       frames=f"the frames of {footage.source}")
 
 
+class _ImportWriter(SweepWriter):
+    """The sweep writer, taking a JPEG's own bytes as they are (no decoding, no second lossy
+    encoding: the drone's file, EXIF included, is the sweep's image)."""
+
+    def _encode(self, image, image_meta):  # type: ignore[override]
+        if isinstance(image, (bytes, bytearray)):
+            return bytes(image)
+        return super()._encode(image, image_meta)
+
+
 def _check_out(out: Path) -> None:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise InputError(str(out), "exists and is not an empty directory", "give a new sweep directory")
@@ -215,9 +225,11 @@ def import_footage(
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.importing-", dir=out.parent))
     try:
-        writer = SweepWriter(tmp, meta, image_format="png", overwrite=True, adaptive=False, queue_frames=16)
+        copy_jpeg = footage.kind == "images" and all(f.path.suffix.lower() in (".jpg", ".jpeg") for f in kept)
+        writer = _ImportWriter(tmp, meta, image_format="jpg" if copy_jpeg else "png", overwrite=True, adaptive=False, queue_frames=16)
+        frames_iter = ((f, f.path.read_bytes()) for f in kept) if copy_jpeg else footage.load(kept)
         try:
-            for k, (f, img) in enumerate(footage.load(kept)):
+            for k, (f, img) in enumerate(frames_iter):
                 st = states[k]
                 utc = utc_iso(st["t_s"] + track.utc_offset_s) if track.utc_offset_s is not None else None
                 rec = {"t_s": st["t_s"], "t_utc": utc, "t_camera_utc": utc_iso(f.t_camera_s), "source_frame": f.name,

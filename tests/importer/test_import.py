@@ -71,7 +71,7 @@ def test_import_finds_the_camera_clock_offset_and_interpolates_the_state(flight,
     ta = doc["time_alignment"]
     assert ta["method"] == "image_motion_xcorr"
     assert abs(ta["camera_clock_offset_s"] - CLOCK_OFFSET_S) < 0.020, ta
-    assert ta["correlation"] > 0.9
+    assert ta["correlation"] > 0.9 and ta["confidence"] > 0.5  # doctor flags below 0.5
     assert doc["camera"]["dist"][0] == pytest.approx(-0.06)
     direct = read_sweep(flight / "sweep")
     imp = read_sweep(out, strict=True)
@@ -248,3 +248,13 @@ def test_tlog_is_for_headless_flights(tmp_path):
                                    "--tlog", str(tmp_path / "f.tlog"), "--mavlink-sim", "udp:127.0.0.1:14999"])
     assert res.exit_code == 2 and "--tlog" in res.output and len(res.output.strip().splitlines()) == 1
     assert not (tmp_path / "f.tlog").exists() and not (tmp_path / "f.tlog.part").exists()
+
+
+def test_motion_the_log_does_not_explain_gets_a_low_confidence(flight):
+    from inspect_pipe.importer import find_offset
+
+    tr = read_flight_log(flight / "f.tlog")
+    t0 = np.arange(1.0, 11.0, 0.1)
+    shift = np.random.default_rng(3).normal(0.0, 3.0, (len(t0), 2))  # image motion unrelated to the flight
+    a = find_offset(tr, t0, t0 + 0.1, shift, search=(-1.0, 1.0))
+    assert a.confidence < 0.3 and a.correlation < 0.6
