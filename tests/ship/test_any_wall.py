@@ -219,3 +219,34 @@ def test_control_points_place_footage_without_vehicle_state(tmp_path):
     found, true = _wall_errors(sweep_dir, tmp_path / "mosaic")
     err = np.linalg.norm(found - true, axis=1).max()
     assert err <= 0.05, err
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not SHIPPED_WALL.is_file(), reason="scenario asset missing")
+def test_report_of_a_side_shell_survey_speaks_ship_terms(tmp_path):
+    # GIVEN the left-wall sweep and a plan for the port side shell
+    from inspect_pipe.pipeline import run_pipeline
+    from inspect_pipe.pipeline._steps import DetectConfig, RunConfig
+
+    sweep = _fly_sweep(tmp_path, "left")
+    plan = yaml.safe_load(PLAN)
+    plan["limitations"] = ["hopper plating not surveyed (ladder access)"]
+    cfg = RunConfig(input=str(sweep), detect=DetectConfig(keyframe_spacing=1.0), report={"pdf": False}, survey_plan=plan)
+    # WHEN the pipeline runs
+    run_pipeline(tmp_path / "run", cfg, log=lambda s: None)
+    # THEN every entry carries its location in frames and height, consistent with its wall point
+    reg = json.loads((tmp_path / "run" / "report" / "defects.json").read_text())
+    assert reg["defects"]
+    for d in reg["defects"]:
+        loc = d["location"]
+        u, v = d["centroid_wall_m"]
+        assert loc["wall"] == "port_side_shell" and loc["frame"] == pytest.approx(140 + u / 0.8, abs=0.02)
+        assert loc["above_tank_top_m"] == pytest.approx(v, abs=0.01) and loc["text"].startswith("Fr. ")
+    csv_head = (tmp_path / "run" / "report" / "defects.csv").read_text().splitlines()[0]
+    assert "location" in csv_head and "frame" in csv_head
+    # AND the report carries the survey record, the limitations, and no raw dict text
+    html = (tmp_path / "run" / "report" / "report.html").read_text()
+    assert "Survey record" in html and "IMO 9074729" in html and "Hold Drones Ltd" in html
+    assert "Limitations" in html and "hopper plating not surveyed" in html and "Signatures" in html
+    assert reg["defects"][0]["location"]["text"] in html
+    assert "{&#39;" not in html and "{'" not in html
