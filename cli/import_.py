@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import note, one_line_errors
+from cli._common import SURVEY_HELP, load_plan, note, one_line_errors
 
 HELP = """Import footage from any drone (a folder of images or a video) plus the autopilot's flight log
 into a sweep (inspect_pipe.sweep/1), as capture writes it: mosaic, run and report read it unchanged.
@@ -44,12 +44,14 @@ def import_(
     camera: Annotated[Optional[Path], typer.Option("--camera", help="camera calibration (OpenCV camera.yaml from `inspect-pipe calibrate`, or ROS camera_info); without it a 60 deg uncalibrated guess")] = None,
     time_offset: Annotated[Optional[float], typer.Option("--time-offset", help="camera clock offset in seconds (camera time minus log time); skips the automatic alignment")] = None,
     video_start: Annotated[Optional[str], typer.Option("--video-start", help="UTC time the video started (ISO 8601), when the file has no creation time")] = None,
+    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " Stored in the sweep.")] = None,
 ) -> None:
     """Import footage from any drone plus its flight log into a sweep."""
     from inspect_pipe.importer import import_footage
 
+    plan = load_plan(survey)
     res = import_footage(frames, log, out, camera_path=camera, time_offset_s=time_offset, video_start=video_start,
-                         on_note=lambda m: note(f"note: {m}"))
+                         on_note=lambda m: note(f"note: {m}"), survey_plan=plan)
     a = res.alignment
     conf = "" if a.confidence is None else f", correlation {a.correlation:.3f}, confidence {a.confidence:.2f}"
     typer.echo(f"camera clock offset {a.camera_clock_offset_s:+.3f} s ({a.method}{conf})")

@@ -159,8 +159,10 @@ def import_footage(
     rate_hz: float = 10.0,
     max_offset_s: float = MAX_OFFSET_S,
     on_note: Callable[[str], None] | None = None,
+    survey_plan=None,
 ) -> ImportResult:
-    """Import footage + flight log into a new sweep at ``out`` (see the module docstring)."""
+    """Import footage + flight log into a new sweep at ``out`` (see the module docstring).
+    ``survey_plan`` (``inspect_pipe.ship.SurveyPlan``) is stored in the sweep."""
     note = on_note or (lambda _m: None)
     out = Path(out)
     _check_out(out)
@@ -221,6 +223,8 @@ def import_footage(
         "odometry_frame": "takeoff",
         "time_alignment": align.to_json(),
     }
+    if survey_plan is not None:
+        meta["survey_plan"] = survey_plan.to_json()
     t0 = time.perf_counter()
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.importing-", dir=out.parent))
