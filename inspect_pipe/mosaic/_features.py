@@ -20,7 +20,9 @@ DETECTORS = ("orb", "sift", "akaze")
 
 @dataclass(frozen=True)
 class Features:
-    """Keypoints of one frame: ``xy`` (N, 2) float32 pixel coordinates, ``desc`` (N, D) descriptors."""
+    """Keypoints of one frame: ``xy`` (N, 2) float32 pixel coordinates, ``desc`` (N, D) uint8
+    descriptors (SIFT's are integers 0-255 stored as uint8; matched as float32, OpenCV's brute-force
+    L2 on uint8 being 6x slower)."""
 
     xy: np.ndarray
     desc: np.ndarray
@@ -98,10 +100,12 @@ def _detect(gray: np.ndarray, detector: str, max_features: int, sensitive: bool)
     kps, desc = det.detectAndCompute(gray, None)
     if desc is None or not kps:
         width = 32 if binary else 128
-        return Features(np.zeros((0, 2), np.float32), np.zeros((0, width), np.uint8 if binary else np.float32), binary)
+        return Features(np.zeros((0, 2), np.float32), np.zeros((0, width), np.uint8), binary)
     if len(kps) > max_features:  # AKAZE has no cap of its own: keep the strongest
         order = np.argsort([-k.response for k in kps])[:max_features]
         kps = [kps[i] for i in order]
         desc = desc[order]
     xy = np.array([k.pt for k in kps], dtype=np.float32)
+    if not binary:  # SIFT's float descriptors hold integers 0-255 (OpenCV rounds them): a quarter of the memory as uint8
+        desc = np.clip(np.rint(desc), 0, 255).astype(np.uint8)
     return Features(xy, desc, binary)

@@ -68,7 +68,8 @@ def _knn_ratio(fa: Features, fb: Features, ratio: float, mask: np.ndarray | None
     candidate is kept (the spatial gate already vouches for it)."""
     norm = cv2.NORM_HAMMING if fa.binary else cv2.NORM_L2
     matcher = cv2.BFMatcher(norm)
-    knn = matcher.knnMatch(fa.desc, fb.desc, k=2) if mask is None else matcher.knnMatch(fa.desc, fb.desc, k=2, mask=mask)
+    da, db = (fa.desc, fb.desc) if fa.binary else (fa.desc.astype(np.float32), fb.desc.astype(np.float32))
+    knn = matcher.knnMatch(da, db, k=2) if mask is None else matcher.knnMatch(da, db, k=2, mask=mask)
     qa, tb = [], []
     for m in knn:
         if (len(m) == 2 and m[0].distance < ratio * m[1].distance) or (len(m) == 1 and mask is not None):

@@ -165,3 +165,32 @@ def corner_error(H_est: dict[int, np.ndarray], H_gt: dict[int, np.ndarray], size
     s = float(np.trace(np.diag(S) @ D) / ((X - mx) ** 2).sum())
     err = np.linalg.norm((s * (R @ (X - mx).T)).T + my - Y, axis=1)
     return CornerError(float(np.median(err)), float(err.max()), len(frames))
+
+
+def coverage_error(
+    covered: np.ndarray, origin_px: np.ndarray, H_live: dict[int, np.ndarray], H_gt: dict[int, np.ndarray],
+    usable: set[int], size_wh: tuple[int, int],
+) -> tuple[float, float]:
+    """A live coverage map against the truth: (share of the surveyed wall where the map is wrong,
+    covered or not; share the truth covers). ``covered`` is the map (picture px = mosaic px -
+    ``origin_px``), ``H_live`` frame px -> live mosaic px, ``H_gt`` frame px -> wall px, ``usable``
+    the frames that truly imaged at usable sharpness. The wall is put on the map by one similarity
+    fitted between the frame centres."""
+    frames = sorted(f for f in H_live if f in H_gt)
+    c = np.array([[size_wh[0] / 2, size_wh[1] / 2]])
+    A = np.concatenate([_apply(H_gt[f], c) for f in frames])
+    B = np.concatenate([_apply(H_live[f], c) for f in frames])
+    ma, mb = A.mean(0), B.mean(0)
+    U, S, Vt = np.linalg.svd((B - mb).T @ (A - ma))
+    D = np.diag([1, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / ((A - ma) ** 2).sum())
+    truth = np.zeros(covered.shape, np.uint8)
+    seen = np.zeros(covered.shape, np.uint8)
+    for f, H in H_gt.items():
+        q = (s * (R @ (footprint(H, size_wh) - ma).T)).T + mb - origin_px
+        cv2.fillConvexPoly(seen, np.round(q).astype(np.int32), 1)
+        if f in usable:
+            cv2.fillConvexPoly(truth, np.round(q).astype(np.int32), 1)
+    area = max(int(seen.sum()), 1)
+    return float((covered != (truth > 0)).sum() / area), float(truth.sum() / area)
