@@ -211,6 +211,8 @@ def run_detect_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
         m = eng.decide(p, k)
         store.save_class_map("mosaic", k, "prob", p)
         store.save_class_map("mosaic", k, "mask", (m & valid).astype(np.uint8) * 255)
+    if getattr(det, "severity", None) is not None:  # condition states of the decided corrosion (onnx / fused)
+        store.save_class_map("mosaic", "corrosion", "severity", np.where(valid, det.severity, 0).astype(np.uint8))
     prob = np.where(valid, det.prob, 0).astype(np.uint8)
     mask = det.mask & valid
     write_png(store.detect_dir / "mosaic.prob.png", prob)

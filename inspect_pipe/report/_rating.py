@@ -8,6 +8,14 @@ as its worst area (never an average).
 | area of hard rust scale (1399: total paint failure) | none | < 10 % | >= 10 % |
 | local breakdown or rust on edges or welds | < 20 % | < 50 % | >= 50 % |
 
+Breakdown is every corrosion pixel of the register's entries; hard rust scale is the corrosion
+the detector puts in condition state poor or severe (the VT condition states, AASHTO: fair is
+surface rust, poor pack rust and pitting, severe section loss) when the engine has a condition-state
+head, otherwise corrosion at least ``hard_rust_prob`` probable (stated in the report). The areas
+under consideration are the plate fields between ship frames (side shells) or stiffeners
+(bulkheads) where the survey plan gives them, by ``area_size_m`` bands up from the tank top;
+``area_size_m`` squares without a plan.
+
 Edges and welds are not measured from a wall mosaic: unless a percentage is given they are
 "not assessed", which makes the rating provisional.
 """
@@ -76,6 +84,8 @@ class AreaRating:
     edges_welds_pct: float | None
     rating: str
     provisional: bool
+    label: str = ""  # plate field in ship terms ("Fr. 143-144"), where the plan gives frames or stiffeners
+    severity_pct: dict | None = None  # fair / poor / severe, % of the imaged area (engines with condition states)
 
     def to_json(self) -> dict:
         d = dict(self.__dict__)
@@ -101,6 +111,15 @@ class WallRating:
         }
 
 
+def _cuts(n_cells: int, edges: list[int] | None, step: int) -> list[int]:
+    """Cell indices where areas begin along one axis: the given edges (plate field boundaries,
+    kept inside the grid), else every ``step`` cells."""
+    if not edges:
+        return list(range(0, n_cells, step))
+    cuts = sorted({0, *(e for e in edges if 0 < e < n_cells)})
+    return cuts
+
+
 def rate_wall(
     imaged: np.ndarray,
     corrosion: np.ndarray,
@@ -109,33 +128,59 @@ def rate_wall(
     origin_uv_m: tuple[float, float],
     cell_m: float,
     params: RatingParams = RatingParams(),
+    severity: np.ndarray | None = None,
+    u_edges_m: list[tuple[float, str]] | None = None,
 ) -> WallRating:
     """Rate a wall from boolean rasters on one grid of ``cell_m`` cells (row 0 at the top,
     ``origin_uv_m`` = wall (u, v) of the grid's top-left corner): where the wall was usably
-    imaged, where corrosion (breakdown) was found, and where hard rust scale was found."""
+    imaged, where corrosion (breakdown) was found, and where hard rust scale was found.
+    ``severity``: the condition state (0 none, 1 fair, 2 poor, 3 severe) on the same grid, for the
+    per-state breakdown. ``u_edges_m``: plate field boundaries along u with the name of the field
+    that begins there (frames or stiffeners, from the survey plan); squares without them."""
     scheme = SCHEMES.get(params.scheme)
     if scheme is None:
         raise ValueError(f"unknown rating scheme {params.scheme!r}; one of {', '.join(SCHEMES)}")
     rows, cols = imaged.shape
     n = max(1, int(round(params.area_size_m / cell_m)))
     u0, v_top = origin_uv_m
+    col_names: dict[int, str] = {}
+    col_edges = None
+    if u_edges_m:
+        col_edges = []
+        for u, name in u_edges_m:
+            c = int(round((u - u0) / cell_m))
+            col_edges.append(c)
+            col_names[max(c, 0)] = name
+    # rows: bands of area_size_m up from the tank top (v = 0), cut at the grid's top
+    row_edges = [int(round((v_top - k * params.area_size_m) / cell_m)) for k in range(0, int(v_top / params.area_size_m) + 2)]
+    rcuts = _cuts(rows, [r for r in row_edges if r > 0], n) if u_edges_m else _cuts(rows, None, n)
+    ccuts = _cuts(cols, col_edges, n)
     areas = []
     provisional = params.edges_welds_pct is None
-    for ar, r0 in enumerate(range(0, rows, n)):
-        for ac, c0 in enumerate(range(0, cols, n)):
-            sl = (slice(r0, min(r0 + n, rows)), slice(c0, min(c0 + n, cols)))
+    for ar, r0 in enumerate(rcuts):
+        r1 = rcuts[ar + 1] if ar + 1 < len(rcuts) else rows
+        for ac, c0 in enumerate(ccuts):
+            c1 = ccuts[ac + 1] if ac + 1 < len(ccuts) else cols
+            sl = (slice(r0, r1), slice(c0, c1))
             im = imaged[sl]
-            full = n * n
             n_im = int(im.sum())
             name = f"{_row_name(ar)}{ac + 1}"
-            box = (u0 + c0 * cell_m, v_top - min(r0 + n, rows) * cell_m, u0 + min(c0 + n, cols) * cell_m, v_top - r0 * cell_m)
-            if n_im == 0 or n_im < params.min_imaged_fraction * min(full, im.size):
-                areas.append(AreaRating(name, *box, n_im * cell_m**2, None, None, params.edges_welds_pct, NOT_RATED, provisional))
+            label = ""
+            if col_names:
+                start = max((c for c in col_names if c <= c0), default=None)
+                label = col_names.get(start, "") if start is not None else ""
+            box = (u0 + c0 * cell_m, v_top - r1 * cell_m, u0 + c1 * cell_m, v_top - r0 * cell_m)
+            if n_im == 0 or n_im < params.min_imaged_fraction * im.size:
+                areas.append(AreaRating(name, *box, n_im * cell_m**2, None, None, params.edges_welds_pct, NOT_RATED, provisional, label))
                 continue
             b = 100.0 * float((corrosion[sl] & im).sum()) / n_im
             h = 100.0 * float((hard_rust[sl] & im).sum()) / n_im
+            sev = None
+            if severity is not None:
+                s_im = severity[sl][im & corrosion[sl]]
+                sev = {k: round(100.0 * float((s_im == i + 1).sum()) / n_im, 2) for i, k in enumerate(("fair", "poor", "severe"))}
             areas.append(AreaRating(name, *box, n_im * cell_m**2, b, h, params.edges_welds_pct,
-                                    scheme.rate(b, h, params.edges_welds_pct), provisional))
+                                    scheme.rate(b, h, params.edges_welds_pct), provisional, label, sev))
     rated = [a for a in areas if a.rating != NOT_RATED]
     if not rated:
         return WallRating(scheme.name, NOT_RATED, provisional, None, tuple(areas), "no area imaged enough to rate")

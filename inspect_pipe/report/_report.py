@@ -17,7 +17,7 @@ from inspect_pipe.ship import locate
 
 from ._coverage import Coverage, CoverageParams, WallGrid, compute_coverage, sharpness
 from ._geo import Survey, WallMap, parse_survey
-from ._rating import RatingParams, WallRating, rate_wall
+from ._rating import SCHEMES, RatingParams, WallRating, rate_wall
 from ._screen import Precision, screen_defects
 from ._register import (
     Defect, FrameView, KeyframeDetection, RegisterParams, assign_ids, build_defects, merged_masks, read_register,
@@ -50,6 +50,7 @@ class ReportInputs:
     sweep: object | None = None  # inspect_pipe.capture.Sweep
     previous: list[Defect] = field(default_factory=list)
     checksums: dict[str, str] = field(default_factory=dict)
+    severity: np.ndarray | None = None  # mosaic-sized condition state of corrosion (0 none, 1 fair, 2 poor, 3 severe)
 
 
 @dataclass
@@ -162,10 +163,18 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
             cv2.fillPoly(keep, [np.asarray(d.polygon_mosaic_px, np.int32)], 1)
     corr = masks.get("corrosion", np.zeros(valid.shape, bool)) & (keep > 0)
     prob = inp.class_probs.get("corrosion", np.zeros(valid.shape, np.uint8))
-    hard = corr & (prob >= int(round(params.rating.hard_rust_prob * 255)))
+    sev_g = None
+    if inp.severity is not None:  # hard rust scale = condition state poor or severe
+        hard = corr & (inp.severity >= 2)
+        sev_g = grid.from_mosaic(np.where(corr, inp.severity, 0).astype(np.uint8), wall)
+        hard_rule = "corrosion in condition state poor or severe (the detector's condition-state head)"
+    else:
+        hard = corr & (prob >= int(round(params.rating.hard_rust_prob * 255)))
+        hard_rule = f"corrosion at least {params.rating.hard_rust_prob:g} probable (the engine has no condition states)"
     corr_g = grid.from_mosaic(corr.astype(np.uint8), wall) > 0
     hard_g = grid.from_mosaic(hard.astype(np.uint8), wall) > 0
-    rating = rate_wall(coverage.usable, corr_g, hard_g, origin_uv_m=(grid.u0_m, grid.v_top_m), cell_m=grid.cell_m, params=params.rating)
+    rating = rate_wall(coverage.usable, corr_g, hard_g, origin_uv_m=(grid.u0_m, grid.v_top_m), cell_m=grid.cell_m, params=params.rating,
+                       severity=sev_g, u_edges_m=plate_field_edges(plan, wall_frame, grid.u0_m, grid.u0_m + grid.shape[1] * grid.cell_m))
 
     model = inp.detections.get("model") or {}
     trace = {
@@ -185,6 +194,11 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "survey_plan": None if plan is None else plan.to_json(),
         "limitations": _limitations(sweep, plan, ((doc.get("input") or {}).get("camera") or {}).get("calibration")),
         "area_imaging": area_imaging(rating.areas, views, wall, sweep),
+        "hard_rust_rule": hard_rule,
+        "scheme_thresholds": {k: v for k, v in asdict(SCHEMES[params.rating.scheme]).items() if isinstance(v, float)},
+        "areas_rule": ("plate fields between " + ("ship frames" if rating.areas and rating.areas[0].label.startswith("Fr.") else "stiffeners")
+                       + f", in {params.rating.area_size_m:g} m bands up from the tank top (survey plan)")
+        if any(a.label for a in rating.areas) else f"{params.rating.area_size_m:g} m squares (no frames or stiffeners in a survey plan)",
         "precision": precision.to_json(),
         "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
                       "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
@@ -192,6 +206,41 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
+
+
+def plate_field_edges(plan, frame, u_lo: float, u_hi: float) -> list[tuple[float, str]] | None:
+    """Wall u of the plate field boundaries the survey plan gives, with the name of the field that
+    begins at each: ship frames on a side shell ("Fr. 143-144"), stiffeners on a bulkhead
+    ("stiff. 2-3 P"); None without a plan, or for a wall it has neither for."""
+    if plan is None or frame is None:
+        return None
+    from inspect_pipe.ship import ShipFrames, Wall
+
+    wall = plan.wall.name
+    edges: list[tuple[float, str]] = []
+    if wall.is_side_shell:
+        frames = ShipFrames.from_plan(plan)
+        xs = [frame.to_hold(np.array([[u, 0.0]]))[0, 0] for u in (u_lo, u_hi)]
+        f_lo, f_hi = sorted(frames.frame_at(x) for x in xs)
+        for n in range(int(np.floor(f_lo)), int(np.ceil(f_hi)) + 1):
+            u = frame.to_wall(np.array([[frames.x_of(n), 0.0, 0.0]]))[0, 0]
+            a, b = (n, n + 1) if frame.e_u[0] > 0 else (n - 1, n)
+            edges.append((float(u), f"Fr. {a}-{b}"))
+    elif wall.is_bulkhead and plan.wall.stiffener_spacing_m:
+        sp = plan.wall.stiffener_spacing_m
+        ys = [frame.to_hold(np.array([[u, 0.0]]))[0, 1] for u in (u_lo, u_hi)]
+        k_lo, k_hi = int(np.floor(min(ys) / sp)), int(np.ceil(max(ys) / sp))
+        for k in range(k_lo, k_hi + 1):
+            u = frame.to_wall(np.array([[0.0, k * sp, 0.0]]))[0, 0]
+            # the field that begins at this stiffener, going right (+u)
+            y_next = k * sp + sp * np.sign(frame.e_u[1] or 1.0)
+            lo, hi = sorted((k, int(round(y_next / sp))))
+            side = lambda j: "CL" if j == 0 else f"{abs(j)}{'P' if j > 0 else 'S'}"  # noqa: E731
+            edges.append((float(u), f"stiff. {side(lo)}-{side(hi)}"))
+    else:
+        return None
+    edges.sort()
+    return edges
 
 
 def area_imaging(areas, views, wall: WallMap, sweep) -> dict[str, dict]:
@@ -287,7 +336,12 @@ def report_from_run(store, out_dir: Path, params: ReportParams = ReportParams())
     if sweep is not None:
         for name in ("sweep.json", "frames.jsonl"):
             checksums[f"sweep/{name}"] = sha256_file(Path(sweep.path) / name)
-    inp = ReportInputs(doc, str(store.mosaic_dir / "mosaic.json"), mosaic, det, masks, probs, keyframes, sweep, previous, checksums)
+    sev_path = store.class_map_path("mosaic", "corrosion", "severity")
+    severity = store.load_class_map("mosaic", "corrosion", "severity") if "corrosion" in kinds and sev_path.exists() else None
+    if severity is not None and severity.shape != mosaic.shape[:2]:
+        raise InputError(str(sev_path), f"size {severity.shape[::-1]} is not the mosaic's {mosaic.shape[1::-1]}")
+    inp = ReportInputs(doc, str(store.mosaic_dir / "mosaic.json"), mosaic, det, masks, probs, keyframes, sweep, previous, checksums,
+                       severity)
     return build_report(inp, params)
 
 

@@ -65,3 +65,33 @@ def test_hard_rust_scale_of_ten_percent_is_poor():
     hard = corr.copy()
     r = rate_wall(imaged[:, :100], corr[:, :100], hard[:, :100], origin_uv_m=(0.0, 1.0), cell_m=0.01)
     assert r.areas[0].hard_rust_pct == pytest.approx(12.0, abs=0.01) and r.rating == POOR
+
+
+def test_plate_fields_and_condition_states():
+    # GIVEN a 2 m x 2 m wall on a 1 cm grid, fully imaged, frames at u = 0.5 and 1.3 m, and corrosion
+    # in the field Fr. 141-142 (u 0.5-1.3): 10 % of it, half fair and half severe
+    from inspect_pipe.report._rating import RatingParams, rate_wall
+
+    n = 200
+    imaged = np.ones((n, n), bool)
+    corr = np.zeros((n, n), bool)
+    sev = np.zeros((n, n), np.uint8)
+    corr[150:166, 50:130] = True  # rows 150..165 (v 0.34-0.50 m), u 0.50-1.30 m: 16 x 80 cells
+    sev[150:158, 50:130] = 1
+    sev[158:166, 50:130] = 3
+    hard = corr & (sev >= 2)
+    edges = [(0.5, "Fr. 141-142"), (1.3, "Fr. 142-143")]
+    r = rate_wall(imaged, corr, hard, origin_uv_m=(0.0, 2.0), cell_m=0.01, params=RatingParams(area_size_m=1.0),
+                  severity=np.where(corr, sev, 0), u_edges_m=edges)
+    # THEN areas are the plate fields between frames (3 columns: before 0.5, 0.5-1.3, 1.3-2.0) in 1 m bands
+    names = {(a.label, round(a.v0_m, 2)) for a in r.areas}
+    assert ("Fr. 141-142", 0.0) in names and ("Fr. 142-143", 1.0) in names and len(r.areas) == 6
+    field = next(a for a in r.areas if a.label == "Fr. 141-142" and a.v0_m < 0.5)
+    assert field.u0_m == pytest.approx(0.5) and field.u1_m == pytest.approx(1.3)
+    area_cells = 80 * 100
+    assert field.breakdown_pct == pytest.approx(100 * 16 * 80 / area_cells)
+    assert field.severity_pct["fair"] == pytest.approx(100 * 8 * 80 / area_cells)
+    assert field.severity_pct["severe"] == pytest.approx(100 * 8 * 80 / area_cells) and field.severity_pct["poor"] == 0
+    # hard rust (severe) 8 % < 10 %, breakdown 16 % <= 20 %: FAIR; the field beside it is GOOD
+    assert field.rating == "FAIR"
+    assert next(a for a in r.areas if a.label == "Fr. 142-143" and a.v0_m < 0.5).rating == "GOOD"
