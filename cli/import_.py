@@ -9,31 +9,17 @@ import typer
 
 from cli._common import SURVEY_HELP, load_plan, note, one_line_errors
 
-HELP = """Import footage from any drone (a folder of images or a video) plus the autopilot's flight log
-into a sweep (inspect_pipe.sweep/1), as capture writes it: mosaic, run and report read it unchanged.
-
-FRAMES: a folder of images (capture time from EXIF DateTimeOriginal + SubSecTimeOriginal +
-OffsetTimeOriginal) or a video file (frame times from the container after its creation time;
---video-start when it has none). Frames are resampled to 10 Hz.
-
---log: a PX4 ULog (.ulg), an ArduPilot DataFlash log (.bin) or a MAVLink telemetry log (.tlog).
-Each frame gets the vehicle state interpolated at the instant it was taken.
-
-Camera clocks are off by seconds: the offset (camera time minus log time) is found by matching
-the image motion between frames with the logged motion over the whole flight, and recorded in
-sweep.json as time_alignment; --time-offset gives it instead.
-
-Examples:
-
-  inspect-pipe import DCIM/100MEDIA --log flight.ulg -o out/hold2_sweep --camera camera.yaml
-
-  inspect-pipe import inspection.mp4 --log 2026-11-20.tlog -o out/sweep --video-start 2026-11-20T10:31:02Z
-
-  inspect-pipe import photos/ --log 00000042.BIN -o out/sweep --time-offset 2.35
-
-Exit 0 on success, 2 on bad input (one line naming the file and the problem; nothing is left
-under SWEEP's name).
-"""
+HELP = "\n\n".join([
+    "Import footage from any drone (a folder of images or a video) plus the autopilot's flight log into a sweep (inspect_pipe.sweep/1), as capture writes it: mosaic, run and report read it unchanged.",
+    'FRAMES: a folder of images (capture time from EXIF DateTimeOriginal + SubSecTimeOriginal + OffsetTimeOriginal) or a video file (frame times from the container after its creation time; --video-start when it has none). Frames are resampled to 10 Hz.',
+    '--log: a PX4 ULog (.ulg), an ArduPilot DataFlash log (.bin) or a MAVLink telemetry log (.tlog). Each frame gets the vehicle state interpolated at the instant it was taken.',
+    'Camera clocks are off by seconds: the offset (camera time minus log time) is found by matching the image motion between frames with the logged motion over the whole flight, and recorded in sweep.json as time_alignment; --time-offset gives it instead.',
+    'Examples:',
+    'inspect-pipe import DCIM/100MEDIA --log flight.ulg -o out/hold2_sweep --camera camera.yaml',
+    'inspect-pipe import inspection.mp4 --log 2026-11-20.tlog -o out/sweep --video-start 2026-11-20T10:31:02Z',
+    'inspect-pipe import photos/ --log 00000042.BIN -o out/sweep --time-offset 2.35',
+    "Exit 0 on success, 2 on bad input (one line naming the file and the problem; nothing is left under SWEEP's name).",
+])
 
 
 @one_line_errors

@@ -258,3 +258,29 @@ def test_motion_the_log_does_not_explain_gets_a_low_confidence(flight):
     shift = np.random.default_rng(3).normal(0.0, 3.0, (len(t0), 2))  # image motion unrelated to the flight
     a = find_offset(tr, t0, t0 + 0.1, shift, search=(-1.0, 1.0))
     assert a.confidence < 0.3 and a.correlation < 0.6
+
+
+def test_a_video_with_its_start_time_is_imported_and_aligned(flight, tmp_path):
+    # the 120 frames as a 10 fps video whose recorder clock starts CLOCK_OFFSET_S off
+    direct = read_sweep(flight / "sweep")
+    first = cv2.imread(str(direct.frames[0].image_path))
+    video = tmp_path / "flight.avi"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (first.shape[1], first.shape[0]))
+    for f in direct.frames:
+        vw.write(cv2.imread(str(f.image_path)))
+    vw.release()
+    start = 1_700_000_000.0 + direct.frames[0].t_s + CLOCK_OFFSET_S
+    out = tmp_path / "from_video"
+    res = CliRunner().invoke(app, ["import", str(video), "--log", str(flight / "f.tlog"), "-o", str(out),
+                                   "--video-start", _iso(start)])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["source"]["footage"]["kind"] == "video" and doc["image_format"] == "png"
+    assert abs(doc["time_alignment"]["camera_clock_offset_s"] - CLOCK_OFFSET_S) < 0.020, doc["time_alignment"]
+    assert len(read_sweep(out).frames) >= 115
+
+
+def _iso(t: float) -> str:
+    import datetime as dt
+
+    return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
