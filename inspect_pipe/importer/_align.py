@@ -31,6 +31,7 @@ from inspect_pipe.importer._logs import FlightTrack
 __all__ = ["Alignment", "image_motion", "find_offset", "interp_pos", "interp_quat"]
 
 METHOD = "image_motion_xcorr"
+MAX_PAIR_GAP_S = 1.5  # frames further apart are not paired (interval shooting at 1 Hz still is)
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ def image_motion(images, times: list[float]) -> tuple[np.ndarray, np.ndarray, np
             shifts.append((dx, dy) if resp >= 0.05 and not big else (np.nan, np.nan))
         prev = g
     t0, t1, s = np.array(t0s), np.array(t1s), np.array(shifts, float).reshape(-1, 2)
-    gap = (t1 - t0) > 0.35
+    gap = (t1 - t0) > MAX_PAIR_GAP_S
     s[gap] = np.nan
     return t0, t1, s
 

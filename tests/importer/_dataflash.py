@@ -23,7 +23,7 @@ def _msg(name: str, *vals) -> bytes:
     return struct.pack("<BBB", 0xA3, 0x95, tid) + struct.pack("<" + fmt, *vals)
 
 
-def tlog_to_dataflash(tlog: Path, out: Path) -> None:
+def tlog_to_dataflash(tlog: Path, out: Path, *, gps: bool = True) -> None:
     from pymavlink import mavutil
 
     conn = mavutil.mavlink_connection(str(tlog), dialect="common")
@@ -31,6 +31,8 @@ def tlog_to_dataflash(tlog: Path, out: Path) -> None:
     while (m := conn.recv_match(type=["LOCAL_POSITION_NED", "ATTITUDE", "DISTANCE_SENSOR", "SYSTEM_TIME"])) is not None:
         kind, us = m.get_type(), m.time_boot_ms * 1000
         if kind == "SYSTEM_TIME":
+            if not gps:
+                continue
             gps_s = m.time_unix_usec * 1e-6 - 315964800 + 18  # GPS time runs 18 s ahead of UTC
             week = int(gps_s // 604800)
             buf += _msg("GPS", us, 3, int(round((gps_s - week * 604800) * 1000)), week)

@@ -284,3 +284,18 @@ def _iso(t: float) -> str:
     import datetime as dt
 
     return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
+
+
+def test_a_log_without_utc_is_searched_whole(flight, tmp_path):
+    # an ArduPilot log without GPS (indoors): only the boot clock; the offset is camera UTC minus boot time
+    from ._dataflash import tlog_to_dataflash
+
+    tlog_to_dataflash(flight / "f.tlog", tmp_path / "nogps.bin", gps=False)
+    assert read_flight_log(tmp_path / "nogps.bin").utc_offset_s is None
+    out = tmp_path / "s"
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(tmp_path / "nogps.bin"), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    ta = json.loads((out / "sweep.json").read_text())["time_alignment"]
+    assert abs(ta["camera_clock_offset_s"] - (1_700_000_000.0 + CLOCK_OFFSET_S)) < 0.020, ta
+    f = read_sweep(out).frames[0]
+    assert f.raw["t_utc"] is None and 0.0 <= f.t_s <= 12.0
