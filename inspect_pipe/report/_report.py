@@ -141,6 +141,8 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
     plan, wall_frame = survey_plan_of(sweep, params.survey_plan)
     if plan is not None:
         defects = [replace(d, location=locate(plan, wall_frame, d.centroid_wall_m).to_json()) for d in defects]
+    if inp.severity is not None:
+        defects = [replace(d, severity=entry_severity(d, inp.severity)) if d.cls == "corrosion" else d for d in defects]
     precision = Precision.of(wall.m_per_px, wall.fit_rms_m)
 
     # sharpness of every placed frame, for coverage
@@ -206,6 +208,23 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
+
+
+def entry_severity(d: Defect, severity: np.ndarray) -> dict | None:
+    """A corrosion entry's condition state: the state of most of its decided pixels, with the
+    share of each (from the mosaic's severity map inside the entry's polygon)."""
+    from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
+
+    if not d.polygon_mosaic_px:
+        return None
+    m = np.zeros(severity.shape, np.uint8)
+    cv2.fillPoly(m, [np.asarray(d.polygon_mosaic_px, np.int32)], 1)
+    vals = severity[(m > 0) & (severity > 0)]
+    if vals.size == 0:
+        return None
+    counts = np.bincount(vals, minlength=4)[1:4].astype(float)
+    return {"state": SEVERITY_STATES[int(np.argmax(counts))],
+            "fractions": {k: round(float(c / counts.sum()), 3) for k, c in zip(SEVERITY_STATES, counts)}}
 
 
 def plate_field_edges(plan, frame, u_lo: float, u_hi: float) -> list[tuple[float, str]] | None:

@@ -95,3 +95,17 @@ def test_plate_fields_and_condition_states():
     # hard rust (severe) 8 % < 10 %, breakdown 16 % <= 20 %: FAIR; the field beside it is GOOD
     assert field.rating == "FAIR"
     assert next(a for a in r.areas if a.label == "Fr. 142-143" and a.v0_m < 0.5).rating == "GOOD"
+
+
+def test_a_corrosion_entry_takes_the_state_of_most_of_its_pixels():
+    from inspect_pipe.report._register import Defect
+    from inspect_pipe.report._report import entry_severity
+
+    sev = np.zeros((50, 50), np.uint8)
+    sev[10:30, 10:20] = 1  # fair: 200 px
+    sev[10:30, 20:35] = 3  # severe: 300 px
+    poly = ((10, 10), (34, 10), (34, 29), (10, 29))
+    d = Defect("D001", "corrosion", ((0, 0),), (0.0, 0.0), (0, 0, 0, 0), 0.01, None, 0.9, (), (), (), poly, (10, 10, 25, 20), 500)
+    s = entry_severity(d, sev)
+    assert s["state"] == "severe"
+    assert s["fractions"] == {"fair": 0.4, "poor": 0.0, "severe": 0.6}
