@@ -368,11 +368,10 @@ def change_map(c: Comparison, max_w: int = 1400) -> np.ndarray:
     for k, ch in enumerate(c.changes, start=1):
         col = STATUS_COLOURS[ch.status]
         x0, y0, x1, y1 = (np.array(ch.bbox_grid) * s).round().astype(int)
-        r = max(8, int(0.6 * max(x1 - x0, y1 - y0)))
-        cx, cy = (x0 + x1) // 2, (y0 + y1) // 2
-        cv2.circle(img, (cx, cy), r, col, 2 if ch.status == "unchanged" else 3, cv2.LINE_AA)
-        cv2.putText(img, f"C{k}", (cx + r + 2, cy + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, f"C{k}", (cx + r + 2, cy + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col, 1, cv2.LINE_AA)
+        pad = 6
+        cv2.rectangle(img, (x0 - pad, y0 - pad), (x1 + pad, y1 + pad), col, 2 if ch.status == "unchanged" else 3, cv2.LINE_AA)
+        cv2.putText(img, f"C{k}", (x1 + pad + 2, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 4, cv2.LINE_AA)
+        cv2.putText(img, f"C{k}", (x1 + pad + 2, y0 + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, 1, cv2.LINE_AA)
     from ._render import scale_bar
 
     return scale_bar(img, s / c.grid.m)

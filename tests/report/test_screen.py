@@ -159,3 +159,19 @@ def test_line_fit_residual():
     t = np.linspace(0, 100, 200)
     c, d, rms, t0, t1 = line_fit(np.c_[t, 0.5 * t + 3])
     assert rms < 1e-9 and t1 - t0 == pytest.approx(np.hypot(100, 50))
+
+
+def test_a_keyframe_that_found_the_defect_a_few_mm_off_confirms_it():
+    import cv2
+
+    mask = np.zeros((H, W), np.uint8)
+    cv2.rectangle(mask, (590, 295), (610, 305), 255, -1)
+    masks, probs = {"corrosion": mask > 0}, {"corrosion": np.where(mask > 0, 230, 5).astype(np.uint8)}
+    views = [FrameView(i, np.eye(3), (W, H)) for i in range(2)]
+    shifted = np.zeros((H, W), bool)
+    shifted[308:312, 590:610] = True  # 3 px (6 mm) below the mosaic's detection: inside the 1 cm tolerance
+    far = np.zeros((H, W), bool)
+    far[320:324, 590:610] = True  # 15 px (3 cm) below: not this defect
+    for kf, found in (([(0, shifted), (1, shifted)], 2), ([(0, far), (1, far)], 0)):
+        cands = build_defects(masks, probs, WALL, views, Survey(), keyframe_masks={"corrosion": kf}, params=RegisterParams())
+        assert len(cands) == 1 and len(cands[0].keyframes_detected) == found and len(cands[0].keyframes_seen) == 2

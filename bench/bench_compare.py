@@ -1,0 +1,91 @@
+"""Change since the last survey (issue 20, item 5): how small a change `compare` tells from noise.
+
+Demo wall (seed 5) flown twice (flight seeds 11 and 12): every change reported is a false one, and
+the area differences of the matched defects are the noise. The same wall edited
+(``edit_demo_wall``: 3 corrosion patches appeared, 2 grew 1.4x in size) and flown with seed 12:
+every appeared or grown defect should be reported new or grown within 10 cm.
+
+    python -m bench --only compare            (3 flights, about 2 min each on 2 free cores)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+
+def measure(old: Path, new: Path, truth_changes: list[dict] | None = None) -> dict:
+    """Compare two runs; with the edit's true changes: which were reported (new/grown within 10 cm)
+    and how many reported changes match none (false changes)."""
+    from inspect_pipe.report._compare import compare_runs
+
+    c = compare_runs(old, new)
+    changes = [ch for ch in c.changes if ch.status != "unchanged"]
+    rel = [abs(ch.area_new_m2 - ch.area_old_m2) / max(ch.area_old_m2, ch.area_new_m2) for ch in c.changes if ch.status == "unchanged"]
+    dabs = [abs(ch.area_new_m2 - ch.area_old_m2) for ch in c.changes if ch.status == "unchanged"]
+    out = {"registration": c.registration, "counts": {s: sum(ch.status == s for ch in c.changes) for s in ("new", "grown", "shrunk", "gone", "unchanged")},
+           "below_noise": len(c.below_noise), "noise_rel_max": max(rel, default=0.0), "noise_abs_max_m2": max(dabs, default=0.0),
+           "changes": [(ch.status, ch.cls, [round(x, 3) for x in ch.centroid_wall_m], round(ch.area_old_m2 * 1e4, 1), round(ch.area_new_m2 * 1e4, 1)) for ch in changes]}
+    if truth_changes is not None:
+        hit, used = [], set()
+        for t in truth_changes:
+            best = None
+            for i, ch in enumerate(changes):
+                d = math.dist(ch.centroid_wall_m, t["centroid_wall_m"])
+                if ch.status in ("new", "grown") and d <= 0.10 and (best is None or d < best[0]):
+                    best = (d, i)
+            hit.append((t["truth"], t["kind"], None if best is None else (changes[best[1]].status, round(best[0] * 100, 1))))
+            if best is not None:
+                used.add(best[1])
+        out["true_changes"] = hit
+        out["false_changes"] = len(changes) - len(used)
+    else:
+        out["false_changes"] = len(changes)
+    return out
+
+
+def run(data: Path) -> str:
+    import tempfile
+
+    from bench.bench_register import fly
+    from inspect_pipe.pipeline._demo import build_demo_wall, edit_demo_wall
+
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="bench_compare_") as tmp:
+        tmp = Path(tmp)
+        wall = build_demo_wall(tmp / "wall", data, seed=5)
+        fly(data, tmp / "a", 5, 11, wall=wall)
+        fly(data, tmp / "b", 5, 12, wall=wall)
+        edited, truth = edit_demo_wall(wall, tmp / "wall_edited", data)
+        fly(data, tmp / "c", 5, 12, wall=edited)
+        same = measure(tmp / "a", tmp / "b")
+        changed = measure(tmp / "a", tmp / "c", [t.to_json() for t in truth])
+    return section(same, changed, time.monotonic() - t0)
+
+
+def section(same: dict, changed: dict, seconds: float) -> str:
+    lines = ["## Change since the last survey (`bench_compare.py`)\n",
+             "Demo wall (seed 5), flights with seeds 11 and 12; the edited wall (3 corrosion patches appeared, 2 grew 1.4x "
+             "linear) flown with seed 12 and compared with flight 11.\n",
+             "| pair | registration (inliers, shift) | new / grown / shrunk / gone / unchanged | below noise | false changes | "
+             "largest unchanged area difference |",
+             "|---|---|---|---:|---:|---|"]
+    for name, r in (("same wall, two flights", same), ("edited wall", changed)):
+        c = r["counts"]
+        lines.append(f"| {name} | {r['registration']['inliers']}, {100 * r['registration']['shift_m']:.1f} cm | "
+                     f"{c['new']} / {c['grown']} / {c['shrunk']} / {c['gone']} / {c['unchanged']} | {r['below_noise']} | {r['false_changes']} | "
+                     f"{r['noise_abs_max_m2'] * 1e4:.1f} cm² ({100 * r['noise_rel_max']:.0f} %) |")
+    lines.append("")
+    lines.append("True changes on the edited wall: " + "; ".join(
+        f"{t} {k}: " + (f"reported {s[0]} at {s[1]} cm" if s else "missed") for t, k, s in changed.get("true_changes", [])) + ".")
+    lines.append(f"\nTotal {seconds:.0f} s.\n")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python bench/bench_compare.py OLD NEW [CHANGES_TRUTH.json]
+    import sys
+
+    tc = json.loads(Path(sys.argv[3]).read_text()) if len(sys.argv) > 3 else None
+    print(json.dumps(measure(Path(sys.argv[1]), Path(sys.argv[2]), tc), indent=1))
