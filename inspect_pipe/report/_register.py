@@ -21,7 +21,7 @@ from ._geo import Survey, WallMap
 STATUSES = ("suggested", "confirmed", "rejected")
 REGISTER_FORMAT = "inspect_pipe.defect_register/1"
 CSV_COLUMNS = ("id", "class", "status", "note", "u_m", "v_m", "area_m2", "length_m", "confidence",
-               "frame_range", "height_above_tank_top_m", "location", "wall", "frame", "from_centreline_m", "side",
+               "frame_range", "height_above_tank_top_m", "severity", "location", "wall", "frame", "from_centreline_m", "side",
                "n_frames", "frames", "polygon_wall_m")
 
 
@@ -71,6 +71,8 @@ class Defect:
     context: str | None = None
     crop_frame: int | None = None  # the sweep frame the crop was cut from (the sharpest that saw it); None: from the mosaic
     location: dict | None = None  # in ship terms (inspect_pipe.ship.Location.to_json); None without a survey plan
+    detected_cls: str | None = None  # the detector's class when a surveyor reclassified the entry (``cls`` is then theirs)
+    severity: dict | None = None  # corrosion with condition states: {"state": fair|poor|severe, "fractions": {...}}
 
     def to_json(self) -> dict:
         r = lambda x: round(float(x), 4)  # noqa: E731
@@ -88,7 +90,7 @@ class Defect:
             "polygon_mosaic_px": [list(p) for p in self.polygon_mosaic_px],
             "bbox_mosaic_xywh": list(self.bbox_mosaic_xywh), "area_px": self.area_px,
             "redetected": self.redetected, "crop": self.crop, "context": self.context, "crop_frame": self.crop_frame,
-            "location": self.location,
+            "location": self.location, "detected_class": self.detected_cls, "severity": self.severity,
         }
 
     @classmethod
@@ -111,6 +113,8 @@ class Defect:
                 redetected=bool(d.get("redetected", True)), crop=d.get("crop"), context=d.get("context"),
                 crop_frame=d.get("crop_frame") if isinstance(d.get("crop_frame"), int) else None,
                 location=d.get("location") if isinstance(d.get("location"), dict) else None,
+                detected_cls=str(d["detected_class"]) if d.get("detected_class") else None,
+                severity=d.get("severity") if isinstance(d.get("severity"), dict) else None,
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(where, f"defect {d.get('id', '?')!r}: field {err} missing or malformed") from None
@@ -281,14 +285,15 @@ def _footprint_poly(v: FrameView) -> np.ndarray:
 def assign_ids(new: list[Defect], previous: list[Defect], *, params: RegisterParams = RegisterParams()) -> list[Defect]:
     """Give new entries the id, status and note of the previous entry of the same class whose
     centroid is within ``match_m`` (closest first); new ids continue after the largest used.
-    Previous entries a surveyor decided on (confirmed / rejected) that were not found again are
-    kept, marked ``redetected = False``."""
+    A previous entry a surveyor reclassified matches on the detector's class and keeps the
+    surveyor's (``detected_cls``). Previous entries a surveyor decided on (confirmed / rejected,
+    or reclassified) that were not found again are kept, marked ``redetected = False``."""
     used = set()
     out = []
     pairs = []
     for i, d in enumerate(new):
         for j, p in enumerate(previous):
-            if p.cls == d.cls:
+            if (p.detected_cls or p.cls) == d.cls:
                 dist = math.dist(d.centroid_wall_m, p.centroid_wall_m)
                 if dist <= params.match_m:
                     pairs.append((dist, i, j))
@@ -301,12 +306,13 @@ def assign_ids(new: list[Defect], previous: list[Defect], *, params: RegisterPar
     for i, d in enumerate(new):
         if i in match:
             p = previous[match[i]]
-            out.append(replace(d, id=p.id, status=p.status, note=p.note, redetected=True))
+            out.append(replace(d, id=p.id, status=p.status, note=p.note, redetected=True,
+                               cls=p.cls if p.detected_cls else d.cls, detected_cls=p.detected_cls))
         else:
             out.append(replace(d, id=f"D{next_n:03d}", status="suggested", redetected=True))
             next_n += 1
     for j, p in enumerate(previous):
-        if j not in used and p.status != "suggested":
+        if j not in used and (p.status != "suggested" or p.detected_cls):
             out.append(replace(p, redetected=False))
     return sorted(out, key=lambda d: _id_number(d.id))
 
@@ -358,7 +364,7 @@ def register_csv(defects: list[Defect], position_decimals: int = 4) -> str:
             d.id, d.cls, d.status, d.note, f"{d.centroid_wall_m[0]:.{p}f}", f"{d.centroid_wall_m[1]:.{p}f}",
             f"{d.area_m2:.4f}" if d.area_m2 >= 1e-3 else f"{d.area_m2:.5f}", "" if d.length_m is None else f"{d.length_m:.2f}", f"{d.confidence:.2f}",
             d.frame_range or "", "" if d.height_above_tank_top_m is None else f"{d.height_above_tank_top_m:.{p}f}",
-            *_location_cells(d.location), len(d.frames), _ranges(d.frames), json.dumps([[round(u, 4), round(v, 4)] for u, v in d.polygon_wall_m]),
+            (d.severity or {}).get("state", ""), *_location_cells(d.location), len(d.frames), _ranges(d.frames), json.dumps([[round(u, 4), round(v, 4)] for u, v in d.polygon_wall_m]),
         ])
     return buf.getvalue()
 
