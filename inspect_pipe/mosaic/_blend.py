@@ -26,6 +26,7 @@ class BlendParams:
     exposure: str = "gain"  # gain | none
     seam: str = "dp"  # dp | voronoi | none
     max_canvas_megapix: float = 600.0
+    tile_px: int = 4096  # full-scale blending in tiles of at most this side (plus the pyramid's margin)
 
 
 class CanvasTooLarge(ValueError):
@@ -116,6 +117,52 @@ def exposure_gains(
     return gains / np.median(gains)  # the typical frame keeps its exposure
 
 
+def _tiles(canvas_wh: tuple[int, int], tile_px: int, margin: int):
+    """(core x0, y0, x1, y1, with-margin x0, y0, x1, y1) of each tile of the canvas."""
+    W, H = canvas_wh
+    for y0 in range(0, H, tile_px):
+        for x0 in range(0, W, tile_px):
+            x1, y1 = min(x0 + tile_px, W), min(y0 + tile_px, H)
+            yield (x0, y0, x1, y1, max(x0 - margin, 0), max(y0 - margin, 0), min(x1 + margin, W), min(y1 + margin, H))
+
+
+def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh) -> None:
+    """Multi-band blend of the frames that reach one tile (with its margin) into ``out``."""
+    cx0, cy0, cx1, cy1, mx0, my0, mx1, my1 = tile
+    w, h = size_wh
+    kernel = np.ones((3, 3), np.uint8)
+    ones = np.full((h, w), 255, np.uint8)
+    blender = None
+    for k, f in enumerate(frames):
+        rx, ry, rw, rh = rois[k]
+        x0, y0, x1, y1 = max(rx, mx0), max(ry, my0), min(rx + rw, mx1), min(ry + rh, my1)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        if blender is None:
+            blender = cv2.detail_MultiBandBlender(0, bands)
+            blender.prepare((mx0, my0, mx1 - mx0, my1 - my0))
+        sub = (x0, y0, x1 - x0, y1 - y0)
+        warped = _warp(prepared(f), Hc[f], sub)
+        # the frame's mask eroded on its whole footprint, then cut to the tile (no edge at the cut)
+        mask = cv2.erode(_warp(ones, Hc[f], rois[k], cv2.INTER_NEAREST), kernel)[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
+        if gains[k] != 1.0:
+            warped = cv2.convertScaleAbs(warped, alpha=float(gains[k]))
+        seam = cv2.resize(cv2.dilate(seams[k], kernel), (rw, rh), interpolation=cv2.INTER_LINEAR_EXACT)
+        seam = seam[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
+        blender.feed(warped.astype(np.int16), cv2.bitwise_and(seam, mask), (x0, y0))
+    if blender is None:
+        return
+    result, result_mask = blender.blend(None, None)
+    if isinstance(result, cv2.UMat):
+        result, result_mask = result.get(), result_mask.get()
+    ox, oy = cx0 - mx0, cy0 - my0
+    core = (slice(oy, oy + cy1 - cy0), slice(ox, ox + cx1 - cx0))
+    dst = out[cy0:cy1, cx0:cx1]
+    dst[..., :3] = np.clip(result[core], 0, 255).astype(np.uint8)
+    dst[..., 3] = result_mask[core]
+    dst[dst[..., 3] == 0, :3] = 0
+
+
 def render(
     load: Callable[[int], np.ndarray],
     H: dict[int, np.ndarray],
@@ -175,26 +222,12 @@ def render(
         seams = masks_s
     del imgs_s
 
-    # Pass 2: full scale
+    # Pass 2: full scale, tile by tile (each tile blended with the margin its pyramid needs, so
+    # tiles join without a visible edge; memory is bounded by the tile, not by the wall)
     blend_width = np.sqrt(canvas_wh[0] * canvas_wh[1]) * params.blend_strength / 100.0
     bands = max(int(np.ceil(np.log2(max(blend_width, 2.0)))) - 1, 1)
-    blender = cv2.detail_MultiBandBlender(0, bands)
-    blender.prepare((0, 0, canvas_wh[0], canvas_wh[1]))
-    kernel = np.ones((3, 3), np.uint8)
-    for k, f in enumerate(frames):
-        roi = _roi(Hc[f], size_wh, canvas_wh)
-        warped = _warp(prepared(f), Hc[f], roi)
-        mask = cv2.erode(_warp(ones, Hc[f], roi, cv2.INTER_NEAREST), kernel)
-        if gains[k] != 1.0:
-            warped = cv2.convertScaleAbs(warped, alpha=float(gains[k]))
-        seam = cv2.dilate(seams[k], kernel)
-        seam = cv2.resize(seam, (roi[2], roi[3]), interpolation=cv2.INTER_LINEAR_EXACT)
-        blender.feed(warped.astype(np.int16), cv2.bitwise_and(seam, mask), (roi[0], roi[1]))
-    result, result_mask = blender.blend(None, None)
-    if isinstance(result, cv2.UMat):
-        result, result_mask = result.get(), result_mask.get()
     out = np.zeros((canvas_wh[1], canvas_wh[0], 4), np.uint8)
-    out[..., :3] = np.clip(result, 0, 255).astype(np.uint8)[: canvas_wh[1], : canvas_wh[0]]
-    out[..., 3] = result_mask[: canvas_wh[1], : canvas_wh[0]]
-    out[out[..., 3] == 0, :3] = 0
+    rois = [_roi(Hc[f], size_wh, canvas_wh) for f in frames]
+    for tile in _tiles(canvas_wh, params.tile_px, 2 ** (bands + 1)):
+        _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh)
     return out, Hc
