@@ -67,7 +67,7 @@ class _LiveLine:
             from rich.text import Text
 
             self._text = Text
-            self.live = Live(Text("starting capture"), console=console, refresh_per_second=4, transient=False)
+            self.live = Live(Text("starting capture"), console=console, refresh_per_second=4, transient=True)  # the summary line replaces it
             self.live.start()
 
     def __call__(self, p: Progress) -> None:

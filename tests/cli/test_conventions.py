@@ -144,3 +144,27 @@ def test_verbosity_sets_what_the_librarys_loggers_show(capsys):
     err = capsys.readouterr().err
     assert "shown-debug-line" in err and "shown-info-line" in err and "shown-warning-line" in err
     assert "hidden-debug-line" not in err and "hidden-info-line" not in err
+
+
+def test_capture_draws_a_rich_live_line_on_a_terminal(monkeypatch, tmp_path):
+    import cv2
+    import numpy as np
+
+    import cli.capture
+
+    buf = io.StringIO()
+    term = Console(file=buf, force_terminal=True, width=120)
+    monkeypatch.setattr(_common, "console", term)
+    monkeypatch.setattr(cli.capture, "console", term)
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for k in range(6):
+        cv2.imwrite(str(folder / f"f{k:02d}.png"), np.full((40, 60, 3), 30 * k, np.uint8))
+    res = runner.invoke(app, ["capture", "--source", f"replay:{folder}", "-o", str(tmp_path / "sw"), "--rate", "4"])  # 1.5 s
+    assert res.exit_code == 0, res.output
+    out = buf.getvalue()
+    assert "frames" in out and "Hz" in out and "drops 0" in out  # the live line, drawn by rich.live
+    buf.truncate(0)
+    buf.seek(0)
+    res = runner.invoke(app, ["capture", "-q", "--source", f"replay:{folder}", "-o", str(tmp_path / "sw2"), "--rate", "50", "--speed", "50"])
+    assert res.exit_code == 0 and buf.getvalue() == ""  # -q: no live line
