@@ -44,6 +44,7 @@ class RegisterParams:
     seam_support: float = 0.5  # ... over this fraction of that extension
     confirm_fraction: float = 0.5  # keyframes that saw an entry: at least this share must have found it ...
     confirm_tolerance_m: float = 0.01  # ... within this distance of its pixels (keyframe and mosaic segment a defect a little differently)
+    confirm_min_seen: int = 2  # ... when at least this many keyframes saw it (one keyframe's miss is weak evidence)
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,12 @@ kept as a ``Suppressed`` row (class, place, reason) so the report can say what i
    the line whose crack probability (its maximum within 3 px across the line) is at least
    ``seam_prob`` must reach ``seam_support``. A real crack meanders (its fit residual is
    centimetres) and the line through a straight stretch of it leaves the crack within centimetres.
-3. **Confirmation across frames.** A candidate that keyframes saw (the centroid inside their
-   footprint; each keyframe is detected on its own, undistorted) must be found by at least
-   ``confirm_fraction`` of them, rounded up (at least one). A candidate no keyframe saw stands on
-   the mosaic's detection alone and is marked so in the register.
+3. **Confirmation across frames.** A candidate that at least ``confirm_min_seen`` keyframes saw
+   (the centroid inside their footprint; each keyframe is detected on its own, undistorted) must
+   be found by at least ``confirm_fraction`` of them, rounded up, within ``confirm_tolerance_m``.
+   One keyframe's miss is weak evidence (a faint patch, or one the network calls a crack there):
+   a candidate seen by fewer keyframes stands on the mosaic's detection and the register says how
+   many keyframes agreed ("mosaic only" when none saw it).
 """
 
 from __future__ import annotations
@@ -144,7 +146,7 @@ def screen_defects(
                             drop(d, "seam", f"straight ({rms_m * 1000:.1f} mm RMS off a line) and the crack response continues along the line "
                                             f"({100 * s:.0f} % of {100 * params.seam_extension_m:.0f} cm each side): a seam or plate edge")
                             continue
-        if d.keyframes_seen:
+        if len(d.keyframes_seen) >= params.confirm_min_seen:
             need = max(1, math.ceil(params.confirm_fraction * len(d.keyframes_seen) - 1e-9))
             if len(d.keyframes_detected) < need:
                 drop(d, "unconfirmed", f"found by {len(d.keyframes_detected)} of the {len(d.keyframes_seen)} keyframes that saw it (needs {need})")
@@ -156,8 +158,9 @@ def screen_defects(
 def confirmation_text(params: RegisterParams = RegisterParams()) -> str:
     """The confirmation rule in words, for the report."""
     pct = int(round(100 * params.confirm_fraction))
-    return (f"an entry that keyframes saw is kept when at least {pct} % of them (rounded up, at least one) found it on their own "
-            "undistorted frame; an entry no keyframe saw rests on the mosaic's detection alone (marked 'mosaic only')")
+    return (f"an entry that {params.confirm_min_seen} or more keyframes saw is kept when at least {pct} % of them (rounded up) found it "
+            f"on their own undistorted frame within {params.confirm_tolerance_m * 100:.0f} cm; an entry fewer keyframes saw rests on the "
+            "mosaic's detection, with the keyframes' verdict shown (\"mosaic only\" when none saw it)")
 
 
 @dataclass(frozen=True)
