@@ -33,9 +33,8 @@ from inspect_pipe.errors import InputError
 
 __all__ = ["AutopilotStateTracker", "ClockMap", "MavlinkStateFeed", "SimStateFeed", "open_vehicle_feed"]
 
-ROT_FORWARD = 0  # MAV_SENSOR_ROTATION_NONE
-ROT_DOWN = 25  # MAV_SENSOR_ROTATION_PITCH_270
-LANDED = {1: "landed", 2: "flying", 3: "taking_off", 4: "landing"}  # MAV_LANDED_STATE -> the sweep's fsm words
+# MAV_LANDED_STATE_<NAME> -> the sweep's fsm words
+LANDED = {"ON_GROUND": "landed", "IN_AIR": "flying", "TAKEOFF": "taking_off", "LANDING": "landing"}
 
 
 @dataclass
@@ -131,14 +130,17 @@ class AutopilotStateTracker:
         kind = m.get_type()
         self.messages += 1
         self.last_rx_host_s = host_s
+        from pymavlink.dialects.v20 import common  # the messages come from it: it is installed
+
         if kind == "HEARTBEAT":
-            if getattr(m, "autopilot", 8) == 8:  # MAV_AUTOPILOT_INVALID: a GCS or companion, not the vehicle
+            if getattr(m, "autopilot", common.MAV_AUTOPILOT_INVALID) == common.MAV_AUTOPILOT_INVALID:  # a GCS or companion, not the vehicle
                 return
             if self.mode_names is not None:
                 self.mode = self.mode_names(m)
             return
         if kind == "EXTENDED_SYS_STATE":
-            self.landed_state = LANDED.get(int(m.landed_state))
+            entry = common.enums["MAV_LANDED_STATE"].get(int(m.landed_state))
+            self.landed_state = LANDED.get(entry.name[len("MAV_LANDED_STATE_"):]) if entry is not None else None
             return
         if kind == "TIMESYNC":
             return  # answered by the feed, which knows when it sent the request
@@ -166,9 +168,9 @@ class AutopilotStateTracker:
             if not (m.min_distance <= m.current_distance <= m.max_distance) or m.current_distance <= 0:
                 return  # out of range: no reading
             r = float(m.current_distance) / 100.0
-            if m.orientation == ROT_FORWARD:
+            if m.orientation == common.MAV_SENSOR_ROTATION_NONE:
                 self.front.add(t, (r,))
-            elif m.orientation == ROT_DOWN:
+            elif m.orientation == common.MAV_SENSOR_ROTATION_PITCH_270:
                 self.down.add(t, (r,))
 
     def _to_takeoff(self, ned: tuple[float, ...]) -> tuple[float, ...]:

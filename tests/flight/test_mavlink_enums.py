@@ -58,3 +58,18 @@ def test_without_pymavlink_the_pure_conversions_work_and_an_enum_is_one_clear_li
         mc.MAV_CMD_NAV_LAND
     with pytest.raises(InputError, match="pymavlink is not installed"):
         mc.ArduCopterMode
+
+
+def test_the_capture_state_tracker_reads_landed_state_and_sensor_orientation_by_pymavlinks_names():
+    pytest.importorskip("pymavlink", reason="needs the [mavlink] extra")
+    from pymavlink.dialects.v20 import common as c
+
+    from inspect_pipe.capture._vehicle_feed import AutopilotStateTracker
+
+    t = AutopilotStateTracker()
+    words = []
+    for state in (c.MAV_LANDED_STATE_ON_GROUND, c.MAV_LANDED_STATE_TAKEOFF, c.MAV_LANDED_STATE_IN_AIR, c.MAV_LANDED_STATE_LANDING,
+                  c.MAV_LANDED_STATE_UNDEFINED, 77):
+        t.on_message(c.MAVLink_extended_sys_state_message(0, state), 1.0)
+        words.append(t.landed_state)
+    assert words == ["landed", "taking_off", "flying", "landing", None, None]
