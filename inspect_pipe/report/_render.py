@@ -83,11 +83,11 @@ def scale_bar(img: np.ndarray, px_per_m: float) -> np.ndarray:
     n = int(round(L * px_per_m))
     x0, y0 = 8, h - 10
     text = f"{L * 100:g} cm" if L < 1 else f"{L:g} m"
-    cv2.rectangle(img, (x0 - 3, y0 - 17), (x0 + max(n, 60) + 3, y0 + 5), (255, 255, 255), -1)
+    cv2.rectangle(img, (x0 - 3, y0 - 20), (x0 + max(n, 60) + 3, y0 + 5), (255, 255, 255), -1)
     cv2.line(img, (x0, y0), (x0 + n, y0), (0, 0, 0), 3)
     for x in (x0, x0 + n):
-        cv2.line(img, (x, y0 - 5), (x, y0 + 3), (0, 0, 0), 2)
-    cv2.putText(img, text, (x0, y0 - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.line(img, (x, y0 - 4), (x, y0 + 3), (0, 0, 0), 2)
+    cv2.putText(img, text, (x0 + 2, y0 - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     return img
 
 
