@@ -42,8 +42,9 @@ def demo(
 ) -> None:
     from cli.run import RichProgress, build_config, check_engine, print_outcome
     from inspect_pipe.pipeline import DetectConfig, run_pipeline
-    from inspect_pipe.pipeline._demo import DEMO_SURVEY, DemoWall, TruthDefect, build_demo_wall, compare_with_truth, demo_scenario
+    from inspect_pipe.pipeline._demo import DEMO_PLAN, DEMO_SURVEY, DemoWall, TruthDefect, build_demo_wall, compare_with_truth, demo_scenario
     from inspect_pipe.report import read_register
+    from inspect_pipe.ship import parse_survey_plan
 
     t0 = time.monotonic()
     check_engine(DetectConfig(engine=engine.value))  # before the wall is built and flown
@@ -58,7 +59,8 @@ def demo(
     wall = DemoWall(wall_dir / "wall.png", wall_dir / "wall_mask.png", wall_dir / "wall_labels.png", doc["m_per_px"], tuple(doc["origin_uv"]), tuple(truth), doc["source"])
     scenario = demo_scenario(wall, wall_dir / "scenario.yaml")
     cfg = build_config(f"fly:{scenario}", kinds="all", keyframe_spacing=0.5, scheme="MSC.1/Circ.1330", area_m=1.0,
-                       no_pdf=no_pdf, m_per_px=None, focal_px=None, survey=DEMO_SURVEY, engine=engine.value)
+                       no_pdf=no_pdf, m_per_px=None, focal_px=None, survey=DEMO_SURVEY, engine=engine.value,
+                       survey_plan=parse_survey_plan(DEMO_PLAN, "demo survey plan"))
     prog = RichProgress("demo")
     try:
         o = run_pipeline(out, cfg, force=force, progress=prog, log=note)

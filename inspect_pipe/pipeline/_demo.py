@@ -292,6 +292,21 @@ def demo_scenario(wall: DemoWall, path: Path, *, base: Path | None = None, durat
 
 DEMO_SURVEY = {"vessel": "MV Demo Carrier (simulated)", "hold": "No. 3", "wall": "front wall", "side": "port",
                "member": "plating", "frame_spacing_m": 0.8, "reference_frame": 112}
+#: The demo's survey plan (docs/ship.md): the simulated hold's front wall is the fore transverse
+#: bulkhead of hold No. 3, stiffeners 0.7 m apart; the simulator's hold frame is the plan's.
+DEMO_PLAN = {
+    "format": "inspect_pipe.survey_plan/1",
+    "vessel": {"name": "MV Demo Carrier (simulated)", "imo": "9074729", "class_society": "demo class"},
+    "survey": {"type": "intermediate survey (demonstration)", "date": "2026-11-25", "rit_provider": "inspect_pipe simulator",
+               "pilot": "scripted operator", "surveyor": "to be signed"},
+    "compartment": {"name": "Cargo hold No. 3"},
+    "hold": {"aft_bulkhead_frame": 112, "frame_spacing_m": 0.8, "tank_top_above_baseline_m": 1.6,
+             "length_m": 12.0, "width_m": 10.0, "height_m": 16.0},
+    "wall": {"name": "fore_transverse_bulkhead", "stiffener_spacing_m": 0.7},
+    "equipment": {"drone": "supervised-autonomy MAV (simulated)", "camera": "752 x 480, 60 deg (simulated)",
+                  "lighting": "on-board LED (simulated)"},
+    "limitations": ["a simulated flight over a wall built from public images: a demonstration, not a survey"],
+}
 
 
 def _grown_masks(wall: DemoWall, truth, match_m: float) -> list[np.ndarray]:
