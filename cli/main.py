@@ -24,6 +24,7 @@ from cli import demo as _demo
 from cli import campaign as _campaign
 from cli import import_ as _import
 from cli import compare as _compare
+from cli import review as _review
 
 app = typer.Typer(
     cls=VerbosityGroup,  # -q/--quiet and -v/--verbose on the app and on every command
@@ -69,6 +70,7 @@ app.command("demo", help=_demo.HELP)(_demo.demo)
 app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
 app.command("import", help=_import.HELP)(_import.import_)
 app.command("compare", help=_compare.HELP)(_compare.compare)
+app.command("review", help=_review.HELP)(_review.review)
 
 
 if __name__ == "__main__":  # pragma: no cover

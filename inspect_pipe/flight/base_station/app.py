@@ -30,57 +30,29 @@ import asyncio
 import base64
 import contextlib
 import datetime as _dt
-import hmac
 import itertools
 import json
 import logging
 import math
-import secrets
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import IO, Any, Callable
-from urllib.parse import parse_qs
+from typing import IO, Any
 
 from inspect_pipe.flight.base_station.realtime import OperatorInbox, RealTimeFlight
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
+from inspect_pipe.webauth import SESSION_COOKIE, TokenBucket, TokenSessions, is_loopback  # noqa: F401 (re-exported)
 
-__all__ = ["BaseStation", "StationConfig", "TokenBucket", "is_loopback", "parse_client_message"]
+__all__ = ["SESSION_COOKIE", "BaseStation", "StationConfig", "TokenBucket", "is_loopback", "parse_client_message"]
 
 log = logging.getLogger(__name__)  # logins and refusals at info (-v); never a token
 
 MAX_MESSAGE_BYTES = 1024
 BUTTONS = {b.value: b for b in Button}
 STICK_LIMITS = {"vx": 1.0, "vy": 1.0, "vz": 0.5, "yaw_rate": 0.8}  # what the page may ask for
-SESSION_COOKIE = "ip_session"
-SESSION_TTL_S = 12 * 3600.0
-MAX_SESSIONS = 64
-
-
-class TokenBucket:
-    """``burst`` tokens, refilled at ``rate_per_s``; ``take()`` spends one and returns 0, or
-    returns the seconds until one is there (and spends nothing)."""
-
-    def __init__(self, rate_per_s: float, burst: float, clock: Callable[[], float] = time.monotonic) -> None:
-        self.rate, self.burst, self.clock = rate_per_s, burst, clock
-        self.tokens = float(burst)
-        self.t = clock()
-
-    def take(self) -> float:
-        now = self.clock()
-        self.tokens = min(self.burst, self.tokens + (now - self.t) * self.rate)
-        self.t = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
-            return 0.0
-        return (1.0 - self.tokens) / self.rate
-
-
-def is_loopback(host: str) -> bool:
-    return host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
 
 
 @dataclass(frozen=True)
@@ -187,9 +159,10 @@ class BaseStation:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.command_count = 0
-        self.sessions: dict[str, float] = {}  # session id -> issued (monotonic); in memory only
-        self.login_buckets: dict[str, TokenBucket] = {}
         self.rate_limited = 0
+        # the token, sessions and login/logout handlers (inspect_pipe.webauth, shared with the review page)
+        self.auth = TokenSessions(config.token, tls=config.tls, login_rate=config.login_rate,
+                                  on_event=self._log_event, on_rate_limited=self._count_rate_limited)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -225,54 +198,28 @@ class BaseStation:
             self._log.write(json.dumps(rec) + "\n")
 
     # ------------------------------------------------------------------ security
-    def token_ok(self, given: str | None) -> bool:
-        if self.cfg.token is None:
-            return True
-        return given is not None and hmac.compare_digest(given.encode(), self.cfg.token.encode())
+    def _count_rate_limited(self) -> None:
+        self.rate_limited += 1
 
-    def new_session(self) -> str:
-        now = time.monotonic()
-        for sid, t in list(self.sessions.items()):
-            if now - t > SESSION_TTL_S:
-                del self.sessions[sid]
-        while len(self.sessions) >= MAX_SESSIONS:
-            del self.sessions[min(self.sessions, key=self.sessions.get)]
-        sid = secrets.token_urlsafe(32)
-        self.sessions[sid] = now
-        return sid
+    @property
+    def sessions(self) -> dict[str, float]:
+        return self.auth.sessions
+
+    def token_ok(self, given: str | None) -> bool:
+        return self.auth.token_ok(given)
+
+    origin_ok = staticmethod(TokenSessions.origin_ok)
 
     def session_of(self, conn: Any) -> str | None:
-        """The live session id in ``conn``'s cookie, if any."""
-        sid = conn.cookies.get(SESSION_COOKIE)
-        if sid and sid in self.sessions and time.monotonic() - self.sessions[sid] <= SESSION_TTL_S:
-            return sid
-        return None
+        return self.auth.session_of(conn)
 
     def authorized(self, conn: Any) -> bool:
-        """No token configured (loopback), a live session cookie, or ``Authorization: Bearer TOKEN``."""
-        if self.cfg.token is None:
-            return True
-        if self.session_of(conn) is not None:
-            return True
-        scheme, _, given = conn.headers.get("authorization", "").partition(" ")
-        return scheme.lower() == "bearer" and self.token_ok(given.strip())
-
-    def login_wait(self, address: str) -> float:
-        bucket = self.login_buckets.setdefault(address, TokenBucket(*self.cfg.login_rate))
-        return bucket.take()
-
-    @staticmethod
-    def origin_ok(headers: Any) -> bool:
-        origin = headers.get("origin")
-        if origin is None:
-            return True  # not a browser (scripts, tests)
-        host = headers.get("host", "")
-        return origin.split("://", 1)[-1] == host
+        return self.auth.authorized(conn)
 
     # ------------------------------------------------------------------ the app
     def app(self) -> Any:
         from starlette.applications import Starlette
-        from starlette.responses import HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse, Response
+        from starlette.responses import HTMLResponse, Response
         from starlette.routing import Route, WebSocketRoute
         from starlette.websockets import WebSocket, WebSocketDisconnect
 
@@ -281,8 +228,7 @@ class BaseStation:
         script = (static / "app.js").read_text()
 
         login_page = (static / "login.html").read_text()
-        url_token = PlainTextResponse("the token never goes in a URL: enter it on the page (POST /login), or send "
-                                      "'Authorization: Bearer TOKEN'", 400)
+        url_token = self.auth.url_token_response()
 
         async def index(request: Any) -> Response:
             if "token" in request.query_params:
@@ -294,59 +240,19 @@ class BaseStation:
         async def app_js(request: Any) -> Response:
             return Response(script, media_type="application/javascript")
 
-        def cookie(response: Response, sid: str | None) -> Response:
-            if sid is None:
-                response.delete_cookie(SESSION_COOKIE, path="/", secure=self.cfg.tls, httponly=True, samesite="strict")
-            else:
-                response.set_cookie(SESSION_COOKIE, sid, path="/", secure=self.cfg.tls, httponly=True, samesite="strict")
-            return response
-
         async def login(request: Any) -> Response:
-            if "token" in request.query_params:
-                return url_token
-            addr = request.client.host if request.client else "?"
-            wait = self.login_wait(addr)
-            if wait > 0:
-                self.rate_limited += 1
-                return PlainTextResponse(f"too many login attempts from {addr}: retry in {wait:.0f} s", 429,
-                                         headers={"Retry-After": str(max(1, math.ceil(wait)))})
-            body = (await request.body())[:4096]
-            ctype = request.headers.get("content-type", "")
-            given = None
-            if ctype.startswith("application/json"):
-                try:
-                    doc = json.loads(body)
-                    given = doc.get("token") if isinstance(doc, dict) and isinstance(doc.get("token"), str) else None
-                except ValueError:
-                    given = None
-            elif ctype.startswith("application/x-www-form-urlencoded"):
-                given = (parse_qs(body.decode("utf-8", "replace")).get("token") or [None])[0]
-            if given is None:
-                scheme, _, value = request.headers.get("authorization", "").partition(" ")
-                given = value.strip() if scheme.lower() == "bearer" else None
-            browser = "text/html" in request.headers.get("accept", "")
-            if self.cfg.token is None or not self.token_ok(given):
-                self._log_event(addr, "login", "refused: wrong token")  # the attempt, never what was typed
-                if browser:
-                    return HTMLResponse(login_page.replace("<!--error-->", "wrong token"), 403)
-                return PlainTextResponse("wrong token", 403)
-            sid = self.new_session()
-            self._log_event(addr, "login", "ok")
-            return cookie(RedirectResponse("/", 303) if browser else JSONResponse({"ok": True}), sid)
+            return await self.auth.login(request, login_page)
+
+        async def close_session(sid: str) -> None:
+            for c in [c for c in self.clients.values() if c.session == sid]:
+                with contextlib.suppress(Exception):
+                    await c.ws.close(code=1008)
 
         async def logout(request: Any) -> Response:
-            sid = self.session_of(request)
-            if sid is not None:
-                del self.sessions[sid]
-                for c in [c for c in self.clients.values() if c.session == sid]:
-                    with contextlib.suppress(Exception):
-                        await c.ws.close(code=1008)
-            self._log_event(request.client.host if request.client else "?", "logout", "ok" if sid else "no session")
-            browser = "text/html" in request.headers.get("accept", "")
-            return cookie(RedirectResponse("/", 303) if browser else JSONResponse({"ok": True}), None)
+            return await self.auth.logout(request, close_session)
 
         async def ws_endpoint(ws: WebSocket) -> None:
-            if "token" in ws.query_params or not self.authorized(ws) or not self.origin_ok(ws.headers):
+            if "token" in ws.query_params or not self.authorized(ws) or not self.auth.origin_ok(ws.headers):
                 await ws.close(code=1008)  # policy violation: log in first (the page reloads to its login form)
                 return
             await ws.accept()
