@@ -361,7 +361,11 @@ def report_from_run(store, out_dir: Path, params: ReportParams = ReportParams())
         raise InputError(str(sev_path), f"size {severity.shape[::-1]} is not the mosaic's {mosaic.shape[1::-1]}")
     inp = ReportInputs(doc, str(store.mosaic_dir / "mosaic.json"), mosaic, det, masks, probs, keyframes, sweep, previous, checksums,
                        severity)
-    return build_report(inp, params)
+    rep = build_report(inp, params)
+    from ._review import AUDIT_NAME, review_summary
+
+    rep.trace["review"] = review_summary(out_dir / AUDIT_NAME)  # inspect-pipe review's audit log, when there is one
+    return rep
 
 
 def write_report(report: Report, out_dir: Path, *, log=print) -> dict[str, Path | None]:

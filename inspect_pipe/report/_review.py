@@ -238,3 +238,16 @@ class Review:
                         "bbox_mosaic_xywh": list(d.bbox_mosaic_xywh), "crop": d.crop, "context": d.context,
                         "redetected": d.redetected, "location": (d.location or {}).get("text")})
         return out
+
+
+def review_summary(path: Path) -> dict | None:
+    """What the report says of the review: reviewers, number of changes, first and last (UTC), and
+    the log's sha256; None when nobody reviewed the register."""
+    recs = read_audit(path)
+    if not recs:
+        return None
+    import hashlib
+
+    times = sorted(str(r.get("t_utc", "")) for r in recs)
+    return {"log": path.name, "changes": len(recs), "reviewers": sorted({str(r.get("reviewer", "?")) for r in recs}),
+            "first_utc": times[0], "last_utc": times[-1], "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}

@@ -255,6 +255,10 @@ def test_a_later_run_keeps_statuses_notes_and_classes(review_run):
     assert reg["D013"].cls == "crack" and reg["D004"].status == "suggested"
     html = (rep / "report.html").read_text()
     assert "reclassified (detected crack)" in html and '<td class="rejected">rejected' in html
+    # AND the report says who reviewed it, how much, and where the log is, with its checksum
+    assert "by J. Smith: 5 changes to the register" in html and "2 entries confirmed, 1 rejected, 1 reclassified, 11 not yet decided" in html
+    trace = json.loads((rep / "defects.json").read_text())["traceability"]["review"]
+    assert (trace["changes"], trace["reviewers"], trace["log"]) == (5, ["J. Smith"], "audit.jsonl") and len(trace["sha256"]) == 64
     # AND a run that finds every step done leaves them alone
     res = runner.invoke(app, run_args(src, run) + ["--no-pdf"])
     assert res.exit_code == 0 and read_register(rep / "defects.json", rep / "defects.csv")[13].cls == "corrosion"

@@ -145,6 +145,7 @@ def test_100_keyboard_edits_survive_a_restart_and_reach_the_pdf(review_run) -> N
     text = subprocess.run(["pdftotext", "-layout", str(rep / "report.pdf"), "-"], capture_output=True, text=True, check=True).stdout
     rows = {m.group(1): (m.group(2), m.group(3)) for m in ROW.finditer(text)}
     assert rows == {i: (s["class"], s["status"]) for i, s in expected.items()}
+    assert "Reviewed by J. Smith: 100 changes to the register" in " ".join(text.split())
     assert text.count("reclassified") >= sum(1 for i, s in expected.items() if s["class"] != next(e["class"] for e in entries if e["id"] == i))
     for old in SHOTS.glob("review_pdf-*.png"):
         old.unlink()
