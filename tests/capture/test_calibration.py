@@ -226,3 +226,18 @@ def test_parse_board():
     for bad in ("9", "ax6", "9x6x2", ""):
         with pytest.raises(InputError):
             parse_board(bad)
+
+
+def test_detected_corners_match_cv2_projectpoints():
+    # GIVEN a chessboard view rendered at a known pose; WHEN its corners are detected
+    img, margin = chessboard_image(9, 6, SQ_PX)
+    origin = (margin * SQ_PX + SQ_PX - 0.5,) * 2
+    rng = np.random.default_rng(11)
+    (rvec, tvec), = random_poses(1, (8 * SQUARE_M, 5 * SQUARE_M), TRUE, distance_m=0.5, rng=rng)
+    view = render_view(TRUE, img, SQUARE_M / SQ_PX, rvec, tvec, origin_px=origin, supersample=3, rng=rng)
+    board = Board(9, 6, SQUARE_M)
+    pts, obj = detect_board(view, board)
+    # THEN they lie where OpenCV projects the board's corners through the true camera (to 0.1 px)
+    truth = cv2.projectPoints(obj.astype(np.float64), rvec, tvec, TRUE.K, TRUE.dist)[0].reshape(-1, 2)
+    err = min(np.linalg.norm(pts - truth, axis=1).mean(), np.linalg.norm(pts[::-1] - truth, axis=1).mean())  # 180-degree symmetric grid
+    assert err < 0.1, err
