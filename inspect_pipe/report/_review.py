@@ -167,6 +167,7 @@ class Review:
         self.defects = defects
         self.lock = threading.Lock()
         self.edits = 0  # made in this session
+        self._stamp = self._disk_stamp()
 
     @property
     def json_path(self) -> Path:
@@ -179,6 +180,23 @@ class Review:
     @property
     def audit_path(self) -> Path:
         return self.dir / AUDIT_NAME
+
+    def _disk_stamp(self) -> tuple:
+        out = []
+        for p in (self.json_path, self.csv_path):
+            try:
+                st = p.stat()
+                out.append((st.st_mtime_ns, st.st_size, st.st_ino))
+            except FileNotFoundError:
+                out.append(None)
+        return tuple(out)
+
+    def reload_if_changed(self) -> None:
+        """Another writer (a later ``run``, a hand edit of the CSV) replaced the register since we
+        read or wrote it: edit what is on disk now, not the copy in memory."""
+        if self._disk_stamp() != self._stamp:
+            fresh = Review.open(self.dir, self.reviewer)
+            self.doc, self.defects, self._stamp = fresh.doc, fresh.defects, fresh._stamp
 
     @classmethod
     def open(cls, report_dir: Path, reviewer: str) -> "Review":
@@ -202,6 +220,7 @@ class Review:
         """Validate and apply one edit request; returns its audit record (None: no change)."""
         edit = parse_edit(doc)
         with self.lock:
+            self.reload_if_changed()
             new, before = apply_edit(self.defects, edit, str(self.json_path))
             if before is None:
                 return None
@@ -227,6 +246,7 @@ class Review:
         write_json(self.json_path, doc)
         atomic_write(self.csv_path, register_csv(self.defects, dec).encode())
         self.doc = doc
+        self._stamp = self._disk_stamp()
 
     def entries(self) -> list[dict]:
         """What the page shows of each entry."""

@@ -113,13 +113,12 @@ class ReviewServer:
                 err = None
             except InputError as e:
                 written, err = {}, str(e)
-            fresh = Review.open(self.review.dir, self.review.reviewer) if err is None else None
-            if fresh is not None:
-                self.review.defects, self.review.doc = fresh.defects, fresh.doc
+            self.review.reload_if_changed()  # the register the report step wrote (same ids, statuses and notes)
             self.dirty = False
-            self.rendered = {"at": utc_now(), "seconds": round(time.perf_counter() - t0, 2),
-                             "pdf": bool(written.get("pdf")), "error": err or (notes[-1] if notes and not written.get("pdf") and self.run_cfg.report_params().pdf else None),
-                             "renders": self.rendered["renders"] + 1}
+            if err is None and not written.get("pdf") and self.run_cfg.report_params().pdf and notes:
+                err = notes[-1]  # the HTML is written; why the PDF is not (WeasyPrint missing ...)
+            self.rendered = {"at": utc_now(), "seconds": round(time.perf_counter() - t0, 2), "pdf": bool(written.get("pdf")),
+                             "error": err, "renders": self.rendered["renders"] + 1}
             return self.rendered
 
     def _renderer(self) -> None:

@@ -21,14 +21,14 @@ CRACKS = [((40, 300), (52, 305), (64, 297), (76, 306), (88, 299), (100, 304)),
 
 def run_args(src: Path, out: Path) -> list[str]:
     """``inspect-pipe run`` with the fixture's options (so a later run skips what is done)."""
-    return ["run", str(src), "-o", str(out), "--focal-px", "618", "--m-per-px", "0.002", "--keyframe-spacing", "0"]
+    return ["run", str(src), "-o", str(out), "--focal-px", "618", "--m-per-px", "0.002", "--keyframe-spacing", "0", "--engine", "saliency"]
 
 
 def _cfg(src: Path):
     from cli.run import build_config
 
     return build_config(str(src), kinds="all", keyframe_spacing=0.0, scheme="MSC.1/Circ.1330", area_m=1.0, no_pdf=False,
-                        m_per_px=0.002, focal_px=618.0)
+                        m_per_px=0.002, focal_px=618.0, engine="saliency")  # its detections are replaced: the engine that ships in the package
 
 
 @pytest.fixture(scope="session")

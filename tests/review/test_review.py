@@ -151,6 +151,31 @@ def test_review_writes_the_audit_line_and_both_register_files(review_run):
     assert _snapshot(rep) == before
 
 
+def test_an_entry_gone_from_the_register_on_disk_is_refused_and_the_rest_edits_what_is_there(review_run):
+    # GIVEN a review open, and the register then rewritten by another writer (a later run) without D003
+    _, run = review_run
+    rep = run / "report"
+    rv = Review.open(rep, "J. Smith")
+    rv.apply({"id": "D001", "field": "status", "value": "confirmed"})
+    doc = json.loads((rep / "defects.json").read_text())
+    doc["defects"] = [d for d in doc["defects"] if d["id"] != "D003"]
+    doc["defects"][1]["note"] = "written by the other writer"  # D002
+    (rep / "defects.json").write_text(json.dumps(doc))
+    (rep / "defects.csv").unlink()
+    before = _snapshot(rep)
+    # WHEN the surveyor edits D003 THEN it is refused (404) and nothing is written
+    with pytest.raises(ReviewError) as err:
+        rv.apply({"id": "D003", "field": "status", "value": "rejected"})
+    assert err.value.http == 404 and "no entry 'D003'" in str(err.value)
+    assert _snapshot(rep) == before
+    # AND an edit of another entry goes onto the register as it is now
+    rv.apply({"id": "D004", "field": "status", "value": "rejected"})
+    reg = {d.id: d for d in read_register(rep / "defects.json", rep / "defects.csv")}
+    assert "D003" not in reg and reg["D002"].note == "written by the other writer"
+    assert (reg["D001"].status, reg["D004"].status) == ("confirmed", "rejected")
+    assert len((rep / "audit.jsonl").read_text().splitlines()) == 2
+
+
 def test_a_run_without_a_register_is_one_line(tmp_path):
     (tmp_path / "run" / "report").mkdir(parents=True)
     with pytest.raises(InputError, match="defects.json: not found: the run has no register"):
