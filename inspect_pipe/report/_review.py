@@ -142,6 +142,24 @@ def read_audit(path: Path) -> list[dict]:
     return out
 
 
+def drop_torn_tail(path: Path) -> int:
+    """Cut a last line without its newline (an append a crash interrupted before its fsync, so
+    before its edit reached the register) so that the next record starts on a line of its own.
+    Returns the bytes cut."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return 0
+    if not data or data.endswith(b"\n"):
+        return 0
+    keep = data.rfind(b"\n") + 1
+    with open(path, "r+b") as fh:
+        fh.truncate(keep)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return len(data) - keep
+
+
 def pending(defects: list[Defect], audit: list[dict]) -> list[Edit]:
     """Audit records whose change the register lacks: the last record of an (entry, field) whose
     ``before`` the register still shows (an edit interrupted between the log and the register)."""
@@ -209,6 +227,7 @@ class Review:
         defects = read_register(j, report_dir / "defects.csv")
         doc = json.loads(j.read_text())
         rv = cls(report_dir, reviewer.strip(), doc, defects)
+        drop_torn_tail(rv.audit_path)
         fix = pending(defects, read_audit(rv.audit_path))
         if fix:
             for e in fix:

@@ -116,8 +116,13 @@ def test_an_edit_logged_but_not_saved_is_finished_on_open(review_run):
     doc["defects"][4]["note"] = "typed in the CSV later"
     (rep / "defects.json").write_text(json.dumps(doc))
     assert [e.id for e in pending(read_register(rep / "defects.json"), read_audit(rep / "audit.jsonl"))] == ["D004"]
-    # WHEN the review opens THEN the register is finished, the hand edit stays
+    with open(rep / "audit.jsonl", "ab") as fh:
+        fh.write(b'{"format": "inspect_pipe.review_audit/1", "t_u')  # and a later append cut before its fsync
+    # WHEN the review opens THEN the register is finished, the hand edit stays, the torn line is cut
     rv = Review.open(rep, "J. Smith")
+    assert (rep / "audit.jsonl").read_bytes().endswith(b"}\n") and len(read_audit(rep / "audit.jsonl")) == 2
+    rv.apply({"id": "D006", "field": "status", "value": "confirmed"})
+    assert [r["id"] for r in read_audit(rep / "audit.jsonl")] == ["D004", "D005", "D006"]
     reg = {d.id: d for d in read_register(rep / "defects.json", rep / "defects.csv")}
     assert reg["D004"].status == "rejected" and reg["D005"].note == "typed in the CSV later"
     assert {d.id: d.status for d in rv.defects}["D004"] == "rejected"
