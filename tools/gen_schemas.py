@@ -13,13 +13,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from inspect_pipe.formats import FORMATS  # noqa: E402
 from inspect_pipe.ship import FORMAT, SurveyPlan  # noqa: E402
 
-SCHEMAS = {"survey_plan.schema.json": (SurveyPlan, FORMAT)}
+SCHEMAS = {"survey_plan.schema.json": (SurveyPlan, FORMAT), **FORMATS}
 
 
 def render(model, fmt: str) -> str:
-    doc = model.model_json_schema()
+    doc = model.model_json_schema(by_alias=True)
     doc = {"$schema": "https://json-schema.org/draft/2020-12/schema", "$id": fmt, **doc}
     return json.dumps(doc, indent=1, sort_keys=False) + "\n"
 

@@ -55,6 +55,9 @@ OUTLIER_RULE = (f"a view is dropped when its RMS reprojection error exceeds {OUT
                 f"and {OUTLIER_FLOOR_PX:g} px; the camera is then re-estimated without it")
 MIN_VIEWS = 3  # Zhang: three views of a plane determine the five intrinsics in general
 MIN_CHARUCO_CORNERS = 8
+# Refused when OpenCV's standard deviation of fx, fy, cx or cy exceeds this share of the focal
+# length (the views do not constrain the camera: too few, or all seen alike)
+MAX_REL_STD = 0.05
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -164,17 +167,34 @@ class Calibration:
     rvecs: tuple[np.ndarray, ...] = field(default=(), repr=False)
     tvecs: tuple[np.ndarray, ...] = field(default=(), repr=False)
     image_points: tuple[np.ndarray, ...] = field(default=(), repr=False)  # kept views, in order
+    std_px: tuple[float, ...] = ()  # OpenCV's standard deviations of fx, fy, cx, cy (px)
 
     @property
     def kept(self) -> list[ViewResult]:
         return [v for v in self.views if v.status == "kept"]
 
 
-def _calibrate_once(obj: list[np.ndarray], img: list[np.ndarray], size_wh: tuple[int, int], flags: int):
-    rms, K, dist, rvecs, tvecs, _, _, per_view = cv2.calibrateCameraExtended(
-        obj, img, size_wh, None, None, flags=flags,
-        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
-    return float(rms), K, dist.ravel()[:5], rvecs, tvecs, per_view.ravel()
+def _calibrate_once(obj: list[np.ndarray], img: list[np.ndarray], size_wh: tuple[int, int], flags: int, where: str):
+    try:
+        rms, K, dist, rvecs, tvecs, std, _, per_view = cv2.calibrateCameraExtended(
+            obj, img, size_wh, None, None, flags=flags,
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    except cv2.error as err:  # degenerate views (all parallel to the image plane, too few corners)
+        why = (getattr(err, "err", None) or str(err)).strip().splitlines()[-1][:120]
+        raise InputError(where, f"OpenCV could not calibrate from these views ({why})",
+                         "take more views, tilted differently, covering the image") from None
+    if not (np.all(np.isfinite(K)) and np.isfinite(rms) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError(where, "the calibration diverged", "take more views, tilted differently, covering the image")
+    std = np.asarray(std, float).ravel()[:4]  # fx, fy, cx, cy: OpenCV's standard deviations
+    rel = std / np.array([K[0, 0], K[1, 1], K[0, 0], K[1, 1]])
+    hint = "take more views, tilted differently (up to about 40 degrees), covering the image"
+    if not (0.5 < K[0, 0] / K[1, 1] < 2.0):
+        raise InputError(where, f"the views do not determine the camera (fx/fy came out {K[0, 0] / K[1, 1]:.2f})", hint)
+    rel = np.nan_to_num(rel, nan=np.inf)
+    if rel.max() > MAX_REL_STD:
+        worst = ("fx", "fy", "cx", "cy")[int(np.argmax(rel))]
+        raise InputError(where, f"the views do not determine the camera ({worst} uncertain by {100 * rel.max():.0f} % of the focal length)", hint)
+    return float(rms), K, dist.ravel()[:5], rvecs, tvecs, per_view.ravel(), std
 
 
 def calibrate(
@@ -204,7 +224,7 @@ def calibrate(
                          f"at least {min_views} views of the board, tilted differently, are needed")
     while True:
         names = [n for n, _ in good]
-        rms, K, dist, rvecs, tvecs, per_view = _calibrate_once([d[1] for _, d in good], [d[0] for _, d in good], size_wh, flags)
+        rms, K, dist, rvecs, tvecs, per_view, std = _calibrate_once([d[1] for _, d in good], [d[0] for _, d in good], size_wh, flags, where)
         for n, e in zip(names, per_view):
             errors[n] = float(e)
         med = float(np.median(per_view))
@@ -218,7 +238,7 @@ def calibrate(
     w, h = size_wh
     cam = CameraModel(np.asarray(K, float), np.asarray(dist, float), int(w), int(h), name)
     views = tuple(ViewResult(n, status[n], 0 if d is None else len(d[0]), errors.get(n)) for n, d in detections)
-    return Calibration(cam, rms, views, board, flags, tuple(rvecs), tuple(tvecs), tuple(d[0] for _, d in good))
+    return Calibration(cam, rms, views, board, flags, tuple(rvecs), tuple(tvecs), tuple(d[0] for _, d in good), tuple(float(x) for x in std))
 
 
 def read_grey(path: Path) -> np.ndarray:
@@ -313,7 +333,13 @@ def write_camera_yaml(path: Path, cal: Calibration) -> None:
     fs.endWriteStruct()
     text = fs.releaseAndGetString()
     text = re.sub(r"\A%YAML[ :]1\.\d+\n", "%YAML:1.0\n", text)
-    atomic_write(Path(path), text.encode())
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(str(path), "is a directory", "give the camera file to write, e.g. -o camera.yaml")
+    try:
+        atomic_write(path, text.encode())
+    except OSError as err:
+        raise InputError(str(path), f"cannot write ({err.strerror or err})", "choose a writable place") from None
 
 
 def _sha256(path: Path) -> str:
@@ -332,17 +358,28 @@ def _matrix(x, where: str, key: str, shape: tuple[int, ...] | None) -> np.ndarra
     return a.reshape(shape) if shape is not None else a.ravel()
 
 
+def _num_or_none(x) -> float | None:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if np.isfinite(v) and v >= 0 else None
+
+
 def _camera(where: str, K, dist, w, h, name: str, rms) -> CameraModel:
     K = _matrix(K, where, "camera_matrix", (3, 3))
     dist = _matrix(dist, where, "distortion_coefficients", None)
-    if dist.size not in (4, 5) and not (dist.size > 5 and not np.any(dist[5:])):
-        raise InputError(where, f"'distortion_coefficients' has {dist.size} values", "the pinhole model with k1 k2 p1 p2 [k3] (plumb_bob)")
-    d = np.zeros(5)
-    d[: min(5, dist.size)] = dist[:5]
     if not (isinstance(w, (int, float)) and isinstance(h, (int, float)) and w == int(w) and h == int(h) and w > 0 and h > 0):
         raise InputError(where, "'image_width' and 'image_height' must be positive integers")
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1.0 or K[1, 0] or K[2, 0] or K[2, 1]:
-        raise InputError(where, "'camera_matrix' is not [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    from inspect_pipe.formats import CameraCalibration, validate
+
+    # the parsed values against the format's one declaration (pinhole K, plumb_bob distortion)
+    validate(CameraCalibration, {"image_width": int(w), "image_height": int(h), "camera_matrix": K.tolist(),
+                                 "distortion_coefficients": dist.tolist(), "camera_name": name or "camera",
+                                 "avg_reprojection_error": _num_or_none(rms)}, where,
+             "an OpenCV calibration file (%YAML:1.0) or a ROS camera_info YAML, pinhole with k1 k2 p1 p2 [k3] (plumb_bob)")
+    d = np.zeros(5)
+    d[: min(5, dist.size)] = dist[:5]
     calib = {"source": str(Path(where).resolve()), "sha256": _sha256(Path(where)),
              "rms_px": None if rms is None else round(float(rms), 6)}
     return CameraModel(K, d, int(w), int(h), name or "camera", calibration=calib)

@@ -273,16 +273,11 @@ def _meta(path: Path, doc: dict) -> SweepMeta:
         raise InputError(where, f"format is {fmt!r}", f"expected {FORMAT!r}")
     if int(m.group(1)) != 1:
         raise InputError(where, f"unknown format version {fmt!r}", f"this inspect-pipe {inspect_pipe.__version__} reads {FORMAT!r}; upgrade it")
-    cam = doc.get("camera")
-    if not isinstance(cam, dict):
-        raise InputError(where, "field 'camera': missing", "a camera model with K, dist, width, height")
-    K = _mat(cam.get("K"))
-    dist = cam.get("dist", [])
-    w, h = cam.get("width"), cam.get("height")
-    if K is None or not isinstance(w, int) or not isinstance(h, int) or w <= 0 or h <= 0:
-        raise InputError(where, "field 'camera': K must be 3x3 numbers and width/height positive integers")
-    if not isinstance(dist, list) or not all(_num(d) is not None for d in dist):
-        raise InputError(where, "field 'camera.dist': not a list of numbers")
+    from inspect_pipe.formats import SweepJson, validate
+
+    validate(SweepJson, doc, where, "docs/sweep.md describes sweep.json")
+    cam = doc["camera"]
+    K, dist, w, h = np.asarray(cam["K"], float), cam.get("dist", []), cam["width"], cam["height"]
     calibration = cam.get("calibration") if isinstance(cam.get("calibration"), dict) else None
     if calibration is None and "calibration" not in cam and (doc.get("source") or {}).get("kind") == "sim":
         calibration = dict(SIM_CALIBRATION)  # written before sweeps recorded it: the simulated camera is exact
@@ -309,12 +304,8 @@ def _meta(path: Path, doc: dict) -> SweepMeta:
         from inspect_pipe.ship import parse_survey_plan
 
         plan = parse_survey_plan(doc["survey_plan"], where + " (survey_plan)")
-    odo = doc.get("odometry_frame", "hold" if sim is not None else "takeoff")
-    if odo not in ("hold", "takeoff"):
-        raise InputError(where, f"field 'odometry_frame': {odo!r} is not 'hold' or 'takeoff'")
+    odo = doc.get("odometry_frame") or ("hold" if sim is not None else "takeoff")
     sim_wall = (sim or {}).get("wall", "front")
-    if sim_wall not in ("front", "back", "left", "right"):
-        raise InputError(where, f"field 'simulation.wall': {sim_wall!r} is not front, back, left or right")
     return SweepMeta(
         format=fmt, camera=camera, cam_to_body=pose, survey=survey,
         software_version=str(doc.get("software_version", "")), source=doc.get("source") or {},
@@ -340,14 +331,16 @@ def _truth(d) -> FrameTruth | None:
 
 
 def _record(sweep_dir: Path, d: dict) -> FrameRecord | str:
-    """A frame record, or why the line is not one."""
-    idx, img, t, exp = d.get("index"), d.get("image"), _num(d.get("t_s")), _num(d.get("exposure_s"))
-    if not isinstance(idx, int) or isinstance(idx, bool) or idx < 0:
-        return "field 'index' is not a non-negative integer"
-    if not isinstance(img, str) or not img or Path(img).is_absolute() or ".." in Path(img).parts:
-        return "field 'image' is not a file inside the sweep"
-    if t is None or exp is None:
-        return "fields 't_s' and 'exposure_s' must be numbers"
+    """A frame record, or why the line is not one (its schema: inspect_pipe.formats.FrameLine)."""
+    from pydantic import ValidationError
+
+    from inspect_pipe.formats import FrameLine, first_error
+
+    try:
+        FrameLine.model_validate(d)
+    except ValidationError as err:
+        return first_error(err)
+    idx, img, t, exp = d["index"], d["image"], float(d["t_s"]), float(d["exposure_s"])
     s = d.get("state") if isinstance(d.get("state"), dict) else {}
     truth = _truth(d.get("truth"))
     return FrameRecord(

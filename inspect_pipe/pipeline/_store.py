@@ -115,8 +115,9 @@ class RunStore:
         doc = read_json(path)
         if doc.get("format") != "inspect_pipe.mosaic/1":
             raise InputError(str(path), f"field 'format': {doc.get('format')!r}", "expected 'inspect_pipe.mosaic/1'")
-        if not isinstance(doc.get("frames"), list):
-            raise InputError(str(path), "field 'frames': missing or not a list")
+        from inspect_pipe.formats import MosaicJson, validate
+
+        validate(MosaicJson, doc, str(path), "docs/mosaic.md describes mosaic.json; run --rerun-from mosaic to write it again")
         return doc
 
     def load_mosaic_image(self) -> np.ndarray:
@@ -145,9 +146,9 @@ class RunStore:
         doc = read_json(path)
         if doc.get("format") != DEFECTS_FORMAT:
             raise InputError(str(path), f"field 'format': {doc.get('format')!r}", f"expected {DEFECTS_FORMAT!r}")
-        for k in ("kinds", "regions"):
-            if not isinstance(doc.get(k), list):
-                raise InputError(str(path), f"field {k!r}: missing or not a list")
+        from inspect_pipe.formats import DetectionsJson, validate
+
+        validate(DetectionsJson, doc, str(path), "run --rerun-from detect to write it again")
         return doc
 
     def class_map_path(self, image: str, cls: str, what: str) -> Path:

@@ -44,7 +44,7 @@ class RegisterParams:
     seam_support: float = 0.5  # ... over this fraction of that extension
     confirm_fraction: float = 0.5  # keyframes that saw an entry: at least this share must have found it ...
     confirm_tolerance_m: float = 0.01  # ... within this distance of its pixels (keyframe and mosaic segment a defect a little differently)
-    confirm_min_seen: int = 2  # ... when at least this many keyframes saw it (one keyframe's miss is weak evidence)
+    confirm_min_seen: int = 1  # ... when at least this many keyframes saw it (its whole box inside the frame)
 
 
 @dataclass(frozen=True)
@@ -259,7 +259,9 @@ def build_defects(
                 if view is None:
                     continue
                 fp = next(fp for v, fp in foot if v.index == idx)
-                if cv2.pointPolygonTest(fp, (float(cx), float(cy)), False) >= 0:
+                # it saw the entry when the entry's whole box lies inside it: a defect the frame
+                # border cuts may not be detected on that frame
+                if all(cv2.pointPolygonTest(fp, (float(a), float(b)), False) >= 0 for a, b in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))):
                     seen.append(idx)
                     if wm[ty0:ty0 + near.shape[0], tx0:tx0 + near.shape[1]][near].any():
                         det.append(idx)
@@ -379,9 +381,10 @@ def read_register(json_path: Path, csv_path: Path | None = None) -> list[Defect]
     where = str(json_path)
     if doc.get("format") != REGISTER_FORMAT:
         raise InputError(where, f"field 'format': {doc.get('format')!r}", f"expected {REGISTER_FORMAT!r}")
-    if not isinstance(doc.get("defects"), list):
-        raise InputError(where, "field 'defects': not a list")
-    defects = [Defect.from_json(d, where) if isinstance(d, dict) else _bad(where) for d in doc["defects"]]
+    from inspect_pipe.formats import RegisterJson, validate
+
+    validate(RegisterJson, doc, where, "docs/report.md describes the register")
+    defects = [Defect.from_json(d, where) for d in doc["defects"]]
     if csv_path is not None and csv_path.exists():
         edits = read_csv_status(csv_path)
         if csv_path.stat().st_mtime > json_path.stat().st_mtime:
@@ -393,9 +396,6 @@ def read_register(json_path: Path, csv_path: Path | None = None) -> list[Defect]
             defects = list(by_id.values())
     return defects
 
-
-def _bad(where):
-    raise InputError(where, "field 'defects': an entry is not an object")
 
 
 def read_csv_status(path: Path) -> dict[str, tuple[str, str]]:

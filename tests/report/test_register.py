@@ -88,7 +88,7 @@ def test_unknown_status_edited_by_hand_is_a_one_line_error_and_nothing_is_lost(r
     res = runner.invoke(app, ["report", str(run_dir.root), "-o", str(out), "--no-pdf"])
     assert res.exit_code == 2
     line = res.output.strip().splitlines()[-1]
-    assert "defects.json" in line and "'status'" in line and "maybe" in line
+    assert "defects.json" in line and "status'" in line and "maybe" in line
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
 
 
