@@ -10,6 +10,7 @@ import typer
 import cv2
 
 from cli._common import choices, one_line_errors
+from inspect_pipe.errors import InputError
 from inspect_pipe.capture._calibration import OUTLIER_RULE, Board, calibrate_images, parse_board, write_camera_yaml
 
 HELP = f"""Calibrate a camera from views of a printed chessboard (or a ChArUco board) and write
@@ -62,7 +63,8 @@ def _table(cal, out: Path) -> None:
     con.print(t)
     K = cal.camera.K
     con.print(f"RMS reprojection error {cal.rms_px:.3f} px over {sum(v.n_points for v in cal.kept)} corners; "
-              f"fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px; "
+              + "; ".join(f"{n} {v:.2f}" + (f" +/- {sd:.2f}" if sd else "") for n, v, sd in
+                          zip(("fx", "fy", "cx", "cy"), (K[0, 0], K[1, 1], K[0, 2], K[1, 2]), cal.std_px or (0.0,) * 4)) + " px; "
               f"dist {' '.join(f'{d:.5f}' for d in cal.camera.dist)}")
     con.print(f"wrote {out}")
 
@@ -78,6 +80,8 @@ def calibrate(
     dictionary: Annotated[Dictionary, typer.Option("--dictionary", help="ChArUco: OpenCV ArUco dictionary.")] = Dictionary("DICT_6X6_250"),
     name: Annotated[str, typer.Option("--name", help="Camera name written into the file.")] = "camera",
 ) -> None:
+    if out.is_dir():
+        raise InputError(str(out), "is a directory", "give the camera file to write, e.g. -o camera.yaml")
     cols, rows = parse_board(board)
     b = Board(cols, rows, square_m, kind=pattern.value, marker_m=marker_m, dictionary=dictionary.value)
     cal = calibrate_images(images, b, name=name)

@@ -77,3 +77,21 @@ def test_bad_options_are_one_line_exit_2(tmp_path, shots, args, message):
     res = runner.invoke(app, ["calibrate", str(shots), "-o", str(tmp_path / "c.yaml"), *args])
     assert res.exit_code == 2 and message in res.output
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_output_that_is_a_directory_is_one_line_exit_2(tmp_path, shots):
+    res = runner.invoke(app, ["calibrate", str(shots), "-o", str(tmp_path), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 2 and "is a directory" in res.output and "Traceback" not in res.output
+
+
+def test_views_that_do_not_determine_the_camera_are_one_line_exit_2(tmp_path):
+    # the same view three times: OpenCV returns a camera, but not a real one (fx/fy far from 1)
+    d = tmp_path / "same"
+    d.mkdir()
+    view = chessboard_views(1, seed=4)[0]
+    for k in range(3):
+        cv2.imwrite(str(d / f"s{k}.png"), view)
+    res = runner.invoke(app, ["calibrate", str(d), "-o", str(tmp_path / "c.yaml"), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 2 and res.output.count("\n") == 1
+    assert "the views do not determine the camera" in res.output and "tilted differently" in res.output
+    assert not (tmp_path / "c.yaml").exists()
