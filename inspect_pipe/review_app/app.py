@@ -142,7 +142,13 @@ class ReviewServer:
         if self._thread is not None:
             self._thread.join(timeout=60)
         if self.dirty:
-            self.render()
+            try:
+                r = self.render()
+            except Exception as e:  # noqa: BLE001 - the register and the audit log are saved; say why the report is not
+                r = {"error": f"{e.__class__.__name__}: {e}"}
+            if r.get("error"):
+                log.warning("report not re-rendered: %s; the register and %s are saved (inspect-pipe run --rerun-from report)",
+                            r["error"], self.review.audit_path.name)
 
     # ------------------------------------------------------------------ helpers
     def mosaic_wh(self) -> tuple[int, int] | None:

@@ -197,7 +197,7 @@ def _client(run: Path, **cfg):
     from inspect_pipe.review_app import ReviewConfig, ReviewServer, open_review
 
     rv, store, rcfg = open_review(run, "J. Smith")
-    return TestClient(ReviewServer(rv, store, rcfg, ReviewConfig(render_after_s=None, **cfg)).app())
+    return TestClient(ReviewServer(rv, store, rcfg, ReviewConfig(**{"render_after_s": None, **cfg})).app())
 
 
 def test_http_edits_answer_one_line_errors_and_write_nothing_on_bad_input(review_run):
@@ -230,6 +230,23 @@ def test_http_edits_answer_one_line_errors_and_write_nothing_on_bad_input(review
     html = (rep / "report.html").read_text()
     assert '<td>D001</td><td>corrosion</td><td class="confirmed">confirmed' in html
     assert len((rep / "audit.jsonl").read_text().splitlines()) == 1
+
+
+def test_the_report_re_renders_by_itself_after_the_last_edit(review_run):
+    import time
+
+    _, run = review_run
+    rep = run / "report"
+    with _client(run, render_after_s=0.3) as c:
+        c.post("/api/edit", json={"id": "D007", "field": "status", "value": "rejected"})
+        assert c.get("/api/register").json()["dirty"] is True
+        t0 = time.monotonic()
+        while c.get("/api/register").json()["rendered"]["renders"] < 1:
+            assert time.monotonic() - t0 < 60, "no render"
+            time.sleep(0.2)
+        state = c.get("/api/register").json()
+        assert state["dirty"] is False and state["rendered"]["error"] is None and state["rendered"]["pdf"] is True
+    assert '<td>D007</td><td>corrosion</td><td class="rejected">rejected' in (rep / "report.html").read_text()
 
 
 def test_off_loopback_the_token_is_exchanged_once_for_a_cookie(review_run):
