@@ -45,9 +45,9 @@ def free_port() -> int:
 class Served:
     """``inspect-pipe review RUN`` as the command builds it, served by uvicorn in a thread."""
 
-    def __init__(self, run: Path, port: int) -> None:
+    def __init__(self, run: Path, port: int, token: str | None = None) -> None:
         rv, store, cfg = open_review(run, "J. Smith")
-        self.server = ReviewServer(rv, store, cfg, ReviewConfig(port=port, render_after_s=None))
+        self.server = ReviewServer(rv, store, cfg, ReviewConfig(port=port, render_after_s=None, token=token))
         self.uv = uvicorn.Server(uvicorn.Config(self.server.app(), host="127.0.0.1", port=port, log_level="warning"))
         self.thread = threading.Thread(target=self.uv.run, daemon=True)
 
@@ -151,3 +151,31 @@ def test_100_keyboard_edits_survive_a_restart_and_reach_the_pdf(review_run) -> N
         old.unlink()
     subprocess.run(["pdftoppm", "-png", "-r", "60", str(rep / "report.pdf"), str(SHOTS / "review_pdf")], check=True)
     assert list(SHOTS.glob("review_pdf-*.png"))
+
+
+def test_with_a_token_the_page_logs_in_once_and_edits_on_the_session_cookie(review_run) -> None:
+    _, run = review_run
+    port = free_port()
+    with Served(run, port, token="surveyor-token-0123"), sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 800})
+            page.goto(f"http://127.0.0.1:{port}/")
+            assert page.locator("form#login").count() == 1
+            page.fill("#token", "not-the-token-00000")
+            page.click("button[type=submit]")
+            assert "wrong token" in page.content()
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.fill("#token", "surveyor-token-0123")
+            page.click("button[type=submit]")
+            page.wait_for_function("window.review && window.review.entries.length === 14", timeout=10_000)
+            assert "token" not in page.url and page.evaluate("document.cookie") == ""
+            page.keyboard.press("j")
+            page.keyboard.press("c")
+            page.wait_for_function("window.review.pending === 0 && window.review.saved === 1", timeout=10_000)
+            page.click("#btn-logout")
+            page.wait_for_selector("form#login", timeout=10_000)
+        finally:
+            browser.close()
+    rec = json.loads((run / "report" / "audit.jsonl").read_text())
+    assert (rec["id"], rec["after"]) == ("D002", "confirmed")
