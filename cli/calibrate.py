@@ -18,7 +18,8 @@ camera.yaml, which capture, import, mosaic and run take as --camera.
 
 Corners: OpenCV's findChessboardCorners + cornerSubPix (ChArUco: aruco.CharucoDetector);
 camera: calibrateCamera, pinhole with distortion k1 k2 p1 p2 k3. A view whose board is not
-found is named and dropped; so is an outlier: {OUTLIER_RULE}. A table gives every view's RMS
+found is named and dropped; so is an outlier: {OUTLIER_RULE} (--keep-outliers keeps them,
+as OpenCV's sample does). A table gives every view's RMS
 reprojection error, then the overall RMS.
 
 camera.yaml is OpenCV FileStorage YAML as OpenCV's calibration sample writes it (%YAML:1.0,
@@ -79,11 +80,13 @@ def calibrate(
     marker_m: Annotated[Optional[float], typer.Option("--marker-m", help="ChArUco: side of a marker, m.")] = None,
     dictionary: Annotated[Dictionary, typer.Option("--dictionary", help="ChArUco: OpenCV ArUco dictionary.")] = Dictionary("DICT_6X6_250"),
     name: Annotated[str, typer.Option("--name", help="Camera name written into the file.")] = "camera",
+    keep_outliers: Annotated[bool, typer.Option("--keep-outliers", help="Keep outlier views (only views without the board are dropped), as OpenCV's sample does.")] = False,
 ) -> None:
     if out.is_dir():
         raise InputError(str(out), "is a directory", "give the camera file to write, e.g. -o camera.yaml")
     cols, rows = parse_board(board)
     b = Board(cols, rows, square_m, kind=pattern.value, marker_m=marker_m, dictionary=dictionary.value)
-    cal = calibrate_images(images, b, name=name)
+    kw = {"outlier_factor": float("inf"), "outlier_floor_px": float("inf")} if keep_outliers else {}
+    cal = calibrate_images(images, b, name=name, **kw)
     write_camera_yaml(out, cal)
     _table(cal, out)

@@ -95,3 +95,44 @@ def test_views_that_do_not_determine_the_camera_are_one_line_exit_2(tmp_path):
     assert res.exit_code == 2 and res.output.count("\n") == 1
     assert "the views do not determine the camera" in res.output and "tilted differently" in res.output
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_charuco_board_from_the_command_line(tmp_path):
+    from inspect_pipe.capture._calibration import Board
+    from inspect_pipe.capture.synthetic_board import random_poses, render_view
+    from tests.capture.test_calibration import TRUE
+
+    board = Board(7, 5, 0.04, kind="charuco", marker_m=0.03, dictionary="DICT_5X5_100")
+    img = board.charuco().generateImage((280, 200), marginSize=0, borderBits=1)
+    rng = np.random.default_rng(8)
+    for k, (r, t) in enumerate(random_poses(8, (0.28, 0.20), TRUE, distance_m=0.6, tilt_deg=30, rng=rng)):
+        cv2.imwrite(str(tmp_path / f"c{k}.png"), render_view(TRUE, img, 0.001, r, t, origin_px=(-0.5, -0.5), supersample=2, rng=rng))
+    out = tmp_path / "out" / "camera.yaml"
+    res = runner.invoke(app, ["calibrate", str(tmp_path), "-o", str(out), "--pattern", "charuco", "--board", "7x5",
+                              "--square-m", "0.04", "--marker-m", "0.03", "--dictionary", "DICT_5X5_100"])
+    assert res.exit_code == 0, res.output
+    cam = load_camera(out)
+    assert abs(cam.K[0, 0] - 430.0) < 0.005 * 430.0 and abs(cam.K[1, 2] - 148.0) < 0.01 * 148.0
+    text = out.read_text()
+    assert "board_kind: charuco" in text and "aruco_dictionary: DICT_5X5_100" in text
+    res = runner.invoke(app, ["calibrate", str(tmp_path), "-o", str(out), "--pattern", "charuco", "--board", "7x5",
+                              "--square-m", "0.04", "--marker-m", "0.03", "--dictionary", "DICT_NOPE"])
+    assert res.exit_code == 2 and "DICT_NOPE" in res.output
+
+
+def test_outlier_view_dropped_unless_keep_outliers(tmp_path, shots):
+    # GIVEN the views plus one whose upper half is shifted 3 px sideways (as a rolling shutter in motion)
+    d = tmp_path / "views"
+    shutil.copytree(shots, d)
+    bad = cv2.imread(str(shots / "view03.png"), cv2.IMREAD_GRAYSCALE)
+    bad[:150] = np.roll(bad[:150], 3, axis=1)
+    cv2.imwrite(str(d / "view50_sheared.png"), bad)
+    out = tmp_path / "c.yaml"
+    res = runner.invoke(app, ["calibrate", str(d), "-o", str(out), "--board", "9x6", "--square-m", "0.03"])
+    assert res.exit_code == 0, res.output
+    row = next(line for line in res.output.splitlines() if "view50_sheared.png" in line)
+    assert "dropped: outlier" in row and "8 of 10 views used" in res.output
+    assert "view50_sheared.png: outlier" in out.read_text()
+    res = runner.invoke(app, ["calibrate", str(d), "-o", str(out), "--board", "9x6", "--square-m", "0.03", "--keep-outliers"])
+    assert res.exit_code == 0, res.output
+    assert "9 of 10 views used" in res.output and "dropped: outlier" not in res.output
