@@ -16,7 +16,7 @@ HELP = (
     "keyboard (j/k next/previous, c confirm, r reject, s suggested, t toggle class, n note, p re-render).\n\n"
     "Every change is appended to RUN_DIR/report/audit.jsonl (reviewer, UTC time, entry, field, before, "
     "after; flushed to disk before the page is told it is saved) and written to defects.json/defects.csv "
-    "atomically; report.html (and report.pdf) re-render a few seconds after the last change and when the "
+    "atomically; report.html (and report.pdf) re-render 10 s after the last change (--render-after), on p and when the "
     "server stops. A later `inspect-pipe run` keeps the decisions.\n\n"
     "Binds 127.0.0.1 unless --host is given; on any other address a token is printed, typed into the page "
     "once and exchanged for a session cookie (as the base station).\n\n"
@@ -33,7 +33,7 @@ def review(
     port: Annotated[int, typer.Option("--port", min=1, max=65535, help="TCP port")] = 8766,
     host: Annotated[str, typer.Option("--host", help="address to bind; not loopback: a token is required")] = "127.0.0.1",
     token: Annotated[Optional[str], typer.Option("--token", help="token to require (default: a new random one off loopback)")] = None,
-    render_after: Annotated[float, typer.Option("--render-after", min=0.0, help="re-render the report this many seconds after the last change")] = 3.0,
+    render_after: Annotated[float, typer.Option("--render-after", min=0.0, help="re-render the report this many seconds after the last change")] = 10.0,
     certfile: Annotated[Optional[Path], typer.Option("--certfile", help="PEM certificate (chain): serve HTTPS")] = None,
     keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:

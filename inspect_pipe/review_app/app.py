@@ -39,7 +39,7 @@ class ReviewConfig:
     port: int = 8766
     token: str | None = None  # required when not on loopback
     tls: bool = False
-    render_after_s: float | None = 3.0  # re-render this long after the last edit; None: only when asked (and at stop)
+    render_after_s: float | None = 10.0  # re-render this long after the last edit (a render holds edits back for its seconds); None: only when asked (and at stop)
     login_rate: tuple[float, float] = (0.2, 5.0)
 
 
