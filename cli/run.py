@@ -106,6 +106,31 @@ def warn_missing(sweep_dir: Path, plan, echo=None, camera=None) -> None:
             (echo or note)(f"warning: {sweep_dir}: {f.what}: {f.detail}")
 
 
+def check_camera(spec: str, camera) -> str:
+    """Fit ``camera`` (--camera) to INPUT's frame size before anything runs: a scaling note line
+    (or ""), or :class:`InputError` for another aspect ratio."""
+    from inspect_pipe.capture._calibration import fit_camera, scaled_note
+    from inspect_pipe.pipeline import input_kind
+
+    kind = input_kind(spec)
+    if kind == "sweep":
+        from inspect_pipe.capture import read_sweep
+
+        meta = read_sweep(spec).meta
+        w, h, frames = meta.width, meta.height, f"the frames of {spec}"
+    elif kind == "folder":
+        from inspect_pipe.mosaic import FolderSource, read_image
+
+        img = read_image(FolderSource(Path(spec)).path(0))
+        w, h, frames = img.shape[1], img.shape[0], f"the images of {spec}"
+    else:
+        from inspect_pipe.flight.scenario import load_scenario
+
+        sc = load_scenario(spec[4:] if spec.startswith("fly:") else spec)
+        w, h, frames = sc.camera.width, sc.camera.height, f"the camera frames of {spec}"
+    return scaled_note(fit_camera(camera, w, h, frames=frames).to_json())
+
+
 def _name(spec: str) -> str:
     p = Path(spec[4:] if spec.startswith("fly:") else spec)
     return p.stem if p.suffix in (".yaml", ".yml") else p.name
@@ -149,6 +174,10 @@ def run(
     rerun_from = rerun_from.value if rerun_from is not None else None
     for spec in inputs:
         input_kind(spec)  # bad input: before anything is written
+        if cam is not None:
+            line = check_camera(spec, cam)
+            if line:
+                note(line)
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
                          m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan,
                          camera=cam) for s in inputs]

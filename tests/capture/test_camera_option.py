@@ -159,3 +159,27 @@ def test_report_limitations_follow_the_mosaics_camera():
 
     assert "uncalibrated camera" in _limitations(None, None)[0]
     assert "uncalibrated" not in _limitations(None, None, {"source": "/x/camera.yaml", "sha256": "0" * 64})[0]
+
+
+def test_run_checks_the_camera_against_each_input_before_anything_runs(tmp_path):
+    from cli.run import check_camera
+
+    assert "calibrated at 512x384; scaled to the frames' 256x192" in check_camera(str(MINI), load_camera(ros_yaml(tmp_path / "c.yaml", 512, 384, 600.0)))
+    assert check_camera(str(MINI), load_camera(ros_yaml(tmp_path / "d.yaml", 256, 192, 300.0))) == ""
+    wide = ros_yaml(tmp_path / "wide.yaml", 640, 360, 500.0)
+    res = run("run", MINI, "-o", tmp_path / "out", "--camera", wide, "--workers", 1)
+    assert res.exit_code == 2 and res.output.count("\n") == 1 and "another aspect ratio" in res.output
+    assert not (tmp_path / "out").exists()
+    res = run("run", MINI, "-o", tmp_path / "out", "--camera", wide, "--focal-px", 300)
+    assert res.exit_code == 2 and "--focal-px: given with --camera" in res.output
+
+
+def test_report_limitations_say_uncalibrated_for_a_sweep_without_calibration(tmp_path, frames):
+    from inspect_pipe.report._report import _limitations
+
+    assert run("capture", "--source", f"replay:{frames}", "-o", tmp_path / "sw", "--speed", 100).exit_code == 0
+    sweep = read_sweep(tmp_path / "sw")
+    lines = _limitations(sweep, None)
+    assert any(x.startswith("calibration: uncalibrated: 60\u00b0 guess") for x in lines)
+    # the mosaic used --camera: the report does not call the camera uncalibrated
+    assert not any(x.startswith("calibration") for x in _limitations(sweep, None, {"source": "/c.yaml", "sha256": "0" * 64}))
