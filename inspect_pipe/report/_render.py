@@ -97,7 +97,7 @@ class FrameCropper:
     closest to it are cut out (undistorted, as the mosaic used them) and the sharpest by variance
     of the Laplacian is kept."""
 
-    def __init__(self, report, candidates: int = 6, cache: int = 24) -> None:
+    def __init__(self, report, candidates: int = 4, cache: int = 48) -> None:
         from inspect_pipe.mosaic import SweepSource
 
         from ._geo import frame_footprint_px
