@@ -102,9 +102,13 @@ class Board:
         p[:, :2] = np.mgrid[0:self.cols, 0:self.rows].T.reshape(-1, 2) * self.square_m
         return p
 
-    def charuco(self):
+    def charuco(self, legacy: bool = False):
+        """OpenCV's board; ``legacy``: the layout OpenCV < 4.6 printed for an even number of rows."""
         d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
+        b = cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
+        if legacy:
+            b.setLegacyPattern(True)
+        return b
 
     def describe(self) -> str:
         if self.kind == "charuco":
@@ -127,8 +131,10 @@ def detect_board(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray
     """Corners of ``board`` in a grey image: (image points (N, 2) float32, object points (N, 3)
     float32), or None when the board is not found."""
     if board.kind == "charuco":
-        det = cv2.aruco.CharucoDetector(board.charuco())
-        corners, ids, _, _ = det.detectBoard(gray)
+        corners, ids, _, marker_ids = cv2.aruco.CharucoDetector(board.charuco()).detectBoard(gray)
+        if (ids is None or len(ids) < MIN_CHARUCO_CORNERS) and marker_ids is not None and len(marker_ids) >= 4 and board.rows % 2 == 0:
+            # markers seen but no corners interpolated: a board printed by OpenCV < 4.6 (legacy layout)
+            corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco(legacy=True)).detectBoard(gray)
         if corners is None or ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         obj = board.object_points()[ids.ravel()]

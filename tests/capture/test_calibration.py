@@ -241,3 +241,17 @@ def test_detected_corners_match_cv2_projectpoints():
     truth = cv2.projectPoints(obj.astype(np.float64), rvec, tvec, TRUE.K, TRUE.dist)[0].reshape(-1, 2)
     err = min(np.linalg.norm(pts - truth, axis=1).mean(), np.linalg.norm(pts[::-1] - truth, axis=1).mean())  # 180-degree symmetric grid
     assert err < 0.1, err
+
+
+def test_charuco_board_of_the_legacy_layout_is_detected():
+    # GIVEN a 7x6 ChArUco board printed with OpenCV < 4.6's layout (even number of rows)
+    board = Board(7, 6, 0.04, kind="charuco", marker_m=0.03, dictionary="DICT_5X5_100")
+    img = board.charuco(legacy=True).generateImage((280, 240), marginSize=0, borderBits=1)
+    rng = np.random.default_rng(2)
+    (r, t), = random_poses(1, (0.28, 0.24), TRUE, distance_m=0.6, tilt_deg=20, rng=rng)
+    view = render_view(TRUE, img, 0.001, r, t, origin_px=(-0.5, -0.5), supersample=2, rng=rng)
+    # THEN its 30 inner corners are found where the true camera puts them
+    pts, obj = detect_board(view, board)
+    assert len(pts) == 30
+    truth = cv2.projectPoints(obj.astype(np.float64), r, t, TRUE.K, TRUE.dist)[0].reshape(-1, 2)
+    assert np.linalg.norm(pts - truth, axis=1).mean() < 0.2
