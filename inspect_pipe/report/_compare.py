@@ -86,6 +86,9 @@ def load_survey_run(path: Path) -> SurveyRun:
     store = RunStore(path)
     mdoc = store.load_mosaic_json()
     mosaic = store.load_mosaic_image()
+    if mdoc.get("wall_from_mosaic") is None:
+        raise InputError(str(store.mosaic_dir / "mosaic.json"), "no wall coordinates (a mosaic of a plain image folder)",
+                         "compare needs runs of sweeps, whose mosaics are placed on the wall")
     wall = WallMap.from_mosaic_json(mdoc, str(store.mosaic_dir / "mosaic.json"), mosaic_hw=mosaic.shape[:2])
     masks = {}
     for k in ("corrosion", "crack"):

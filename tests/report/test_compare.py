@@ -115,3 +115,14 @@ def test_area_change_within_the_noise_is_unchanged():
     assert classify(0.0100, 0.0135, p) == "grown"  # +35 cm²: beyond 4 + 27 cm²
     assert classify(0.0100, 0.0050, p) == "shrunk"
     assert classify(0.0, 0.002, p) == "new" and classify(0.002, 0.0, p) == "gone"
+
+
+def test_a_folder_mosaic_without_wall_coordinates_is_refused(surveys, tmp_path):
+    old, _ = surveys
+    folder = make_run(tmp_path / "folder", painted=True)
+    _register(folder)
+    doc = json.loads((folder.mosaic_dir / "mosaic.json").read_text())
+    del doc["wall_from_mosaic"]
+    write_json(folder.mosaic_dir / "mosaic.json", doc)
+    r = runner.invoke(app, ["compare", str(old.root), str(folder.root), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2 and "no wall coordinates" in r.output and not (tmp_path / "out").exists()
