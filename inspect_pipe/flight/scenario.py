@@ -239,7 +239,11 @@ def load_scenario(path: str | Path) -> Scenario:
     if not path.is_file():
         raise InputError(str(path), "scenario file not found", "give the path of a .yaml scenario")
     try:
-        doc = yaml.safe_load(path.read_text())
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(str(path), "not UTF-8 text", "a YAML or JSON scenario") from None
+    try:
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
