@@ -223,13 +223,21 @@ def _read_tlog(path: Path) -> FlightTrack:
     ranges: dict[str, tuple[list, list]] = {}
     sys_time, stamp_off = [], []
     n = 0
+    vehicle: int | None = None  # MAVLink system id of the autopilot (a tlog also holds the GCS, a companion...)
     try:
         while True:
-            m = conn.recv_match(type=["LOCAL_POSITION_NED", "ATTITUDE", "DISTANCE_SENSOR", "SYSTEM_TIME", "EXTENDED_SYS_STATE"])
+            m = conn.recv_match(type=["HEARTBEAT", "LOCAL_POSITION_NED", "ATTITUDE", "DISTANCE_SENSOR", "SYSTEM_TIME", "EXTENDED_SYS_STATE"])
             if m is None:
                 break
             n += 1
             kind = m.get_type()
+            src = m.get_srcSystem()
+            if kind == "HEARTBEAT":
+                if vehicle is None and getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (not a vehicle)
+                    vehicle = src
+                continue
+            if vehicle is not None and src != vehicle:
+                continue
             if kind == "LOCAL_POSITION_NED":
                 t = m.time_boot_ms * 1e-3
                 t_pos.append(t)

@@ -299,3 +299,19 @@ def test_a_log_without_utc_is_searched_whole(flight, tmp_path):
     assert abs(ta["camera_clock_offset_s"] - (1_700_000_000.0 + CLOCK_OFFSET_S)) < 0.020, ta
     f = read_sweep(out).frames[0]
     assert f.raw["t_utc"] is None and 0.0 <= f.t_s <= 12.0
+
+
+def test_a_tlog_keeps_the_vehicle_and_ignores_another_system(flight, tmp_path):
+    # a second system on the link (another vehicle, sysid 7) streams its own position: not mixed in
+    from pymavlink.dialects.v20 import common
+
+    other = common.MAVLink(None, srcSystem=7, srcComponent=1)
+    raw = bytearray((flight / "f.tlog").read_bytes())
+    t = 1_700_000_003_000_000
+    for k in range(100):
+        msg = common.MAVLink_local_position_ned_message(3000 + 10 * k, 50.0, 50.0, -9.0, 0.0, 0.0, 0.0)
+        raw += t.to_bytes(8, "big") + msg.pack(other)
+    mixed = tmp_path / "mixed.tlog"
+    mixed.write_bytes(bytes(raw))
+    tr, ref = read_flight_log(mixed), read_flight_log(flight / "f.tlog")
+    assert len(tr.t_pos) == len(ref.t_pos) and np.abs(tr.pos_ned).max() < 20
