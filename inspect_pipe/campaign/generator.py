@@ -20,9 +20,14 @@ _SCRIPT_WEIGHTS = (0.24, 0.14, 0.2, 0.2, 0.1, 0.12)
 _FAULTS = ("sensor_dropout", "packet_loss", "stuck_reading", "spurious_max_range", "range_loss",
            "flow_quality_zero", "link_loss", "battery_sag", "gust")
 _FAULT_WEIGHTS = (0.22, 0.1, 0.08, 0.1, 0.1, 0.08, 0.16, 0.06, 0.1)
+# The honest simulator's fault classes (issue 19): drawn from a stream of their own, so that every
+# episode without one is the one earlier campaigns (and the regression scenarios) flew.
+_HONEST_FAULTS = ("weak_motor", "vibration", "low_texture")
+HONEST_FAULT_SHARE = 0.25  # of the episodes get one of them
 _SENSORS = ("bottom_flow", "front_flow", "bottom_tof", "left_sonar", "right_sonar")
 _SECTOR_SENSOR = {"front": "front_flow", "left": "left_sonar", "right": "right_sonar"}
-DROPOUT_FAULTS = frozenset({"sensor_dropout", "packet_loss", "stuck_reading", "spurious_max_range", "range_loss", "flow_quality_zero"})
+DROPOUT_FAULTS = frozenset({"sensor_dropout", "packet_loss", "stuck_reading", "spurious_max_range", "range_loss", "flow_quality_zero",
+                            "low_texture"})
 
 
 @dataclass(frozen=True)
@@ -137,8 +142,10 @@ def _world(rng: random.Random, kind: str, alt_lo: float, alt_hi: float, front_d:
     return world, (sx, sy)
 
 
-def generate_episode(seed: int, index: int) -> EpisodeSpec:
-    """Episode ``index`` of the campaign with seed ``seed``."""
+def generate_episode(seed: int, index: int, *, honest_faults: bool = True) -> EpisodeSpec:
+    """Episode ``index`` of the campaign with seed ``seed``. ``honest_faults``: draw the honest
+    simulator's fault classes (weak motor, vibration, low texture) too; without them the episode
+    is the one campaigns before issue 19 flew (what a regression scenario replays)."""
     rng = random.Random(f"inspect_pipe.campaign/{seed}/{index}")
     kind = rng.choices(SCRIPT_KINDS, _SCRIPT_WEIGHTS)[0]
     alt = _r(rng.uniform(1.0, 3.5), 2)
@@ -293,6 +300,19 @@ def generate_episode(seed: int, index: int) -> EpisodeSpec:
         key = rng.choice(("mass_scale", "thrust_scale"))
         vehicle[key] = _r(rng.uniform(0.7, 1.3))
         subsets.add("model_error")
+    hrng = random.Random(f"inspect_pipe.campaign.honest/{seed}/{index}")
+    if honest_faults and hrng.random() < HONEST_FAULT_SHARE:
+        f = hrng.choice(_HONEST_FAULTS)
+        fault = {"t": _r(hrng.uniform(*span)), "fault": f}
+        if f == "weak_motor":
+            fault.update(duration_s=_r(hrng.uniform(2.0, 20.0)), rate=_r(hrng.uniform(0.05, 0.3)))
+        elif f == "vibration":
+            fault.update(duration_s=_r(hrng.uniform(2.0, 20.0)), rate=_r(hrng.uniform(0.05, 0.5)))
+        else:  # low texture: a texture-poor or dark stretch under one PX4Flow
+            fault.update(duration_s=_r(hrng.uniform(1.0, 10.0)), sensor=hrng.choice(("bottom_flow", "front_flow")),
+                         rate=_r(hrng.uniform(0.3, 0.9)))
+        faults.append(fault)
+        subsets.add("dropout" if f in DROPOUT_FAULTS else f)
     faults.sort(key=lambda f: f["t"])
     if not (subsets & {"dropout", "link_loss", "gust", "battery_sag", "model_error"}):
         subsets.add("clean")

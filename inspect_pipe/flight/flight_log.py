@@ -25,7 +25,7 @@ def _cmd(c) -> dict:
 
 
 def record_to_json(rec: TickRecord) -> dict:
-    o, e, d, c = rec.out, rec.out.estimate, rec.dist_true, rec.out.clearance
+    o, e, d, c, i = rec.out, rec.out.estimate, rec.dist_true, rec.out.clearance, rec.imu
     return {
         "t": _r(rec.t, 3),
         "pos_true": [_r(v) for v in rec.pos_true],
@@ -41,6 +41,9 @@ def record_to_json(rec: TickRecord) -> dict:
         "dist_est": {"front": _r(c.front_m), "left": _r(c.left_m), "right": _r(c.right_m), "down": _r(c.down_m)},
         "dist_true": {"front": _r(d.front), "back": _r(d.back), "left": _r(d.left), "right": _r(d.right), "down": _r(d.down)},
         "attitude_sp": {"roll": _r(o.setpoint.roll_rad), "pitch": _r(o.setpoint.pitch_rad), "thrust": _r(o.setpoint.thrust_frac)},
+        "imu": None if i is None else {"ax": _r(i.fx_m_s2), "ay": _r(i.fy_m_s2), "az": _r(i.fz_m_s2)},
+        "att_est": None if i is None else {"roll": _r(i.roll_rad, 5), "pitch": _r(i.pitch_rad, 5)},
+        "att_true": {"roll": _r(rec.rpy_true[0], 5), "pitch": _r(rec.rpy_true[1], 5)},
         "battery_percent": _r(rec.battery_percent, 2),
         "link_ok": rec.link_ok,
         "collided": rec.collided,

@@ -176,11 +176,13 @@ class MavlinkLink:
             scale = 1.0 if kind == "HIGHRES_IMU" else 9.81e-3  # SCALED_IMU is in milli-g
             f = (m.xacc * scale, m.yacc * scale, m.zacc * scale)
             if all(math.isfinite(v) for v in f):
-                ax, ay, az = mc.heading_accel_from_imu(f, *self.attitude)
+                roll, pitch, yaw_ned = self.attitude
                 with self._lock:
-                    # World yaw (x forward, y left) is the NED yaw negated (see mavlink_codec).
-                    yaw = -float(self.attitude[2]) if self.have_attitude else None
-                    self._imu = ImuReading(now, ax, ay, az, yaw)
+                    # World yaw (x forward, y left) is the NED yaw negated (see mavlink_codec);
+                    # FRD specific force -> the stack's body axes (x forward, y left, z up), with
+                    # the autopilot's attitude estimate (pitch negated likewise).
+                    yaw = -float(yaw_ned) if self.have_attitude else None
+                    self._imu = ImuReading(now, f[0], -f[1], -f[2], yaw, float(roll), -float(pitch))
         elif kind == "LOCAL_POSITION_NED":
             self.local_position = (m.x, m.y, m.z, m.vx, m.vy, m.vz)
         elif kind == "BATTERY_STATUS":

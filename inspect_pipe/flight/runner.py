@@ -16,6 +16,7 @@ from inspect_pipe.flight.scenario import VEHICLE_RADIUS_M, FaultKind, Scenario
 from inspect_pipe.flight.sensors import NO_FAULTS, SensorFaults, SensorSpecs, SensorSuite
 from inspect_pipe.flight.vehicle_sim import AttitudeFirmware, QuadrotorSim, VehicleModel
 from inspect_pipe.flight_stack.flight_machine import FlightState
+from inspect_pipe.flight_stack.messages import ImuReading
 from inspect_pipe.flight_stack.onboard import OnboardStack, TickOutput
 from inspect_pipe.flight_stack.params import StackParams
 
@@ -23,6 +24,7 @@ __all__ = ["ExitStatus", "FlightResult", "SimParts", "TickRecord", "run_scenario
 
 
 FLOOR_CRASH_M_S = 1.0  # touching the floor faster than this is a collision, not a landing
+VIBRATION_FULL_M_S2 = 3.0  # a vibration fault of rate 1 (std of the IMU's 50 Hz mean; PX4 flags raw vibration above 30 m/s^2)
 
 
 class ExitStatus(str, enum.Enum):
@@ -45,6 +47,7 @@ class TickRecord:
     collided: bool
     rpy_true: tuple[float, float, float] = (0.0, 0.0, 0.0)  # roll, pitch, yaw (ZYX); the camera's attitude
     side_true: float | None = None  # distance to the nearest wall or box side (HoldGeometry.side_distance)
+    imu: ImuReading | None = None  # what the autopilot's IMU and attitude estimate gave the stack this tick
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,8 @@ def _sensor_faults(active: list) -> SensorFaults:
         spurious_max_range={f.sensor: f.rate for f in active if f.kind is K.SPURIOUS_MAX_RANGE},
         range_loss=any(f.kind is K.RANGE_LOSS for f in active),
         flow_quality_zero=frozenset(f.sensor for f in active if f.kind is K.FLOW_QUALITY_ZERO),
+        low_texture={f.sensor: f.rate for f in active if f.kind is K.LOW_TEXTURE},
+        vibration_m_s2=VIBRATION_FULL_M_S2 * sum(f.rate for f in active if f.kind is K.VIBRATION),
     )
 
 
@@ -128,6 +133,7 @@ def run_scenario(
     dropouts = [f for f in scenario.faults if f.kind is FaultKind.SENSOR_DROPOUT]
     sensor_faults = [f for f in scenario.faults if f.kind not in (FaultKind.SENSOR_DROPOUT, FaultKind.LINK_LOSS)]
     sags = [f for f in scenario.faults if f.kind is FaultKind.BATTERY_SAG]
+    weak = [f for f in scenario.faults if f.kind is FaultKind.WEAK_MOTOR]
     gusts = [f for f in scenario.faults if f.kind is FaultKind.GUST]
     hover_thrust_n = stack.params.control.hover_thrust_frac * parts.vehicle.max_thrust_n
     leg_height = parts.vehicle.leg_height_m
@@ -171,7 +177,7 @@ def run_scenario(
                 TickRecord(
                     t=now, pos_true=(x, y, z), vel_true=vel, yaw_true=rpy[2], out=out,
                     dist_true=dist, battery_percent=battery.percent, link_ok=operator.link_ok, collided=collided,
-                    rpy_true=rpy, side_true=side,
+                    rpy_true=rpy, side_true=side, imu=meas.imu,
                 )
             )
         if collided and collided_at is None:
@@ -183,6 +189,8 @@ def run_scenario(
         dropped = frozenset(f.sensor for f in dropouts if f.active(now)) if dropouts else no_dropouts  # type: ignore[misc]
         if sensor_faults:
             sim.thrust_available = max(0.0, 1.0 - sag)
+            if weak:
+                sim.motor_health[0] = max(0.0, 1.0 - sum(f.rate for f in weak if f.active(now)))  # type: ignore[misc]
             wind = [0.0, 0.0, 0.0]
             for f in gusts:
                 if f.active(now):

@@ -57,12 +57,16 @@ class FaultKind(str, enum.Enum):
     FLOW_QUALITY_ZERO = "flow_quality_zero"  # PX4Flow quality 0 (texture-less surface); its sonar still works
     BATTERY_SAG = "battery_sag"  # ``rate``: fraction of thrust lost, and of the charge reading
     GUST = "gust"  # wind of ``wind_m_s`` (world frame) acting through the rotor drag
+    WEAK_MOTOR = "weak_motor"  # ``rate``: share of the front motor's thrust lost (the firmware does not know)
+    VIBRATION = "vibration"  # ``rate``: rotor vibration, rate x 3 m/s^2 added to the IMU (std of its 50 Hz mean)
+    LOW_TEXTURE = "low_texture"  # PX4Flow ``sensor`` sees a surface with ``rate`` of its texture and light lost
 
 
 # Which fields a fault kind needs: sensor, rate (0..1), wind vector.
 _NEEDS_SENSOR = {FaultKind.SENSOR_DROPOUT, FaultKind.PACKET_LOSS, FaultKind.STUCK_READING,
-                 FaultKind.SPURIOUS_MAX_RANGE, FaultKind.FLOW_QUALITY_ZERO}
-_NEEDS_RATE = {FaultKind.PACKET_LOSS, FaultKind.SPURIOUS_MAX_RANGE, FaultKind.BATTERY_SAG}
+                 FaultKind.SPURIOUS_MAX_RANGE, FaultKind.FLOW_QUALITY_ZERO, FaultKind.LOW_TEXTURE}
+_NEEDS_RATE = {FaultKind.PACKET_LOSS, FaultKind.SPURIOUS_MAX_RANGE, FaultKind.BATTERY_SAG,
+               FaultKind.WEAK_MOTOR, FaultKind.VIBRATION, FaultKind.LOW_TEXTURE}
 
 
 @dataclass(frozen=True)
@@ -147,7 +151,7 @@ class Fault:
     duration_s: float
     kind: FaultKind
     sensor: SensorName | None = None
-    rate: float | None = None  # packet_loss, spurious_max_range: probability; battery_sag: fraction
+    rate: float | None = None  # packet_loss, spurious_max_range: probability; battery_sag, weak_motor, low_texture: fraction; vibration: level
     wind_m_s: tuple[float, float, float] | None = None  # gust
 
     def active(self, t: float) -> bool:
@@ -385,7 +389,7 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
             if "sensor" not in fl:
                 raise r.fail(f + ".sensor", "missing", "one of " + ", ".join(s.value for s in SensorName))
             sensor = r.enum(fl["sensor"], f + ".sensor", SensorName)
-            if kind is FaultKind.FLOW_QUALITY_ZERO and sensor not in (SensorName.BOTTOM_FLOW, SensorName.FRONT_FLOW):
+            if kind in (FaultKind.FLOW_QUALITY_ZERO, FaultKind.LOW_TEXTURE) and sensor not in (SensorName.BOTTOM_FLOW, SensorName.FRONT_FLOW):
                 raise r.fail(f + ".sensor", f"{sensor.value} has no flow", "bottom_flow or front_flow")
             if kind is FaultKind.SPURIOUS_MAX_RANGE and sensor is SensorName.BOTTOM_TOF:
                 raise r.fail(f + ".sensor", "the TeraRanger is not a sonar", "a sonar: bottom_flow, front_flow, left_sonar, right_sonar")

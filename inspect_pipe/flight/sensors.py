@@ -1,8 +1,11 @@
 """Simulated sensors with their real rates, ranges, noise and latency.
 
-* PX4Flow (bottom and front): metric flow at 100 Hz, 20 ms latency, noise growing with distance,
-  a small per-unit bias, quality 0..255 (0 without a sonar echo: no metric scale); its MaxBotix
-  HRLV-EZ4 sonar at 10 Hz, 0.3..5 m, 50 ms latency.
+* PX4Flow (bottom and front): 100 Hz, 20 ms latency. The camera sees angular flow (rad/s): the
+  velocity across its axis over the distance along it, plus the body rotation; the unit's own
+  gyro (bias, scale error, noise) takes the rotation out and its own sonar's last range scales
+  what is left to metres per second, as the PX4Flow firmware does. Angular noise and quality
+  0..255 follow the texture and the light (quality 0 without a sonar echo: no metric scale); its
+  MaxBotix HRLV-EZ4 sonar at 10 Hz, 0.3..5 m, 50 ms latency.
 * Side HRLV-EZ4 sonars (left, right): 10 Hz, 5 m.
 * Every horizontal sonar has a beam, not a ray: an ultrasonic ranger reports its first echo, the
   nearest surface inside its beam. The beam is a horizontal fan of ``sonar_beam_rays`` rays over
@@ -11,7 +14,13 @@
   pillar or coaming that a real sonar hears (safety campaign: slides along a wall into a pillar's
   side). The fan is horizontal only: the downward PX4Flow sonar and the ToF stay single rays.
 * TeraRanger One (bottom): 100 Hz, 0.2..14 m, 10 ms latency, +-2 cm.
-* The autopilot's IMU: mean acceleration per control tick, with noise and a residual bias.
+* Sonars miss their echo at shallow incidence: a flat steel plate reflects the pulse away, so a ray
+  meeting its surface more than ``grazing_deg`` off the normal returns nothing with a probability
+  growing to 1 at ``miss_all_deg``.
+* The autopilot's IMU: the accelerometer's specific force in the body frame (gravity and tilt
+  included, mean per control tick) with bias, noise and rotor vibration; gyro rates with bias and
+  noise; and the autopilot's attitude estimate as a quantity of its own (:class:`AttitudeError`:
+  a level bias, a slow drift, transients under sustained acceleration and fast rotation).
 
 A reading is delivered at ``sample time + latency`` and stamped with its delivery time (what the
 onboard computer sees). A sensor under a ``sensor_dropout`` fault delivers nothing; the other
@@ -32,9 +41,9 @@ from dataclasses import dataclass, field
 
 from inspect_pipe.flight.scenario import SensorName
 from inspect_pipe.flight.vehicle_sim import QuadrotorSim
-from inspect_pipe.flight_stack.messages import BottomFlow, FrontFlow, ImuReading, Measurements, RangeReading
+from inspect_pipe.flight_stack.messages import G_M_S2, BottomFlow, FrontFlow, ImuReading, Measurements, RangeReading
 
-__all__ = ["FlowSpec", "RangeSpec", "SensorFaults", "SensorSuite", "SensorSpecs"]
+__all__ = ["AttitudeError", "AttitudeSpec", "FlowSpec", "ImuSpec", "RangeSpec", "SensorFaults", "SensorSuite", "SensorSpecs"]
 
 
 @dataclass(frozen=True)
@@ -51,26 +60,48 @@ class RangeSpec:
 class FlowSpec:
     rate_hz: float = 100.0
     latency_s: float = 0.02
-    noise_m_s: float = 0.015
-    noise_per_m: float = 0.01  # flow noise grows with the distance to the textured surface
-    bias_m_s: float = 0.002  # std of the per-unit bias (gyro compensation, lens)
-    quality: int = 200
+    noise_rad_s: float = 0.02  # angular flow noise on a well-lit, textured surface
+    bias_m_s: float = 0.002  # std of the per-unit metric bias (lens, mounting)
+    gyro_bias_rad_s: float = 0.001  # std of the unit's L3GD20 gyro bias left after its start-up calibration (0.06 deg/s)
+    gyro_scale: float = 0.02  # std of the unit's gyro scale error (rotation left in the compensated flow)
+    gyro_noise_rad_s: float = 0.005
+    quality: int = 200  # on a textured, lit surface
+    light_range_m: float = 4.0  # beyond it the image darkens as 1/d^2 (the vehicle's own light)
 
 
 @dataclass(frozen=True)
 class ImuSpec:
-    noise_m_s2: float = 0.05
+    noise_m_s2: float = 0.05  # white noise of the 50 Hz mean specific force
     bias_m_s2: float = 0.03  # std of the residual accelerometer bias after calibration
+    vibration_m_s2: float = 0.1  # std of rotor vibration left in the 50 Hz mean (raised by the vibration fault)
+    gyro_noise_rad_s: float = 0.003
+    gyro_bias_rad_s: float = 0.002
     yaw_drift_rad_s: float = 0.002  # std of the heading estimate's drift rate (0.1 deg/s)
+
+
+@dataclass(frozen=True)
+class AttitudeSpec:
+    """Error of the autopilot's roll/pitch estimate (a complementary filter / EKF fusing the gyro
+    with the accelerometer as the gravity reference)."""
+
+    level_bias_rad: float = 0.005  # std of the constant part: level calibration, board alignment (0.3 deg)
+    drift_rad: float = 0.003  # std of the slow wander (gyro bias not yet fused out)
+    drift_tau_s: float = 20.0
+    accel_coupling: float = 0.05  # share of the apparent tilt (a_horizontal / g) a sustained acceleration leaves
+    accel_tau_s: float = 1.0  # how fast that share builds up and fades (the accelerometer fusion's time constant)
+    gyro_scale: float = 0.01  # std of the gyro scale error: a fast rotation leaves scale x angle, fused out over accel_tau_s
+    vibration_rad_per_m_s2: float = 0.002  # attitude noise per m/s^2 of vibration
 
 
 @dataclass(frozen=True)
 class SensorSpecs:
     flow: FlowSpec = FlowSpec()
     imu: ImuSpec = ImuSpec()
+    attitude: AttitudeSpec = AttitudeSpec()
     sonar: RangeSpec = RangeSpec(10.0, 0.05, 0.3, 5.0, 0.005, 0.002)
     tof: RangeSpec = RangeSpec(100.0, 0.01, 0.2, 14.0, 0.02)
     grazing_deg: float = 35.0  # incidence from the surface normal beyond which a sonar may miss its echo
+    miss_all_deg: float = 75.0  # incidence at which a sonar hears no echo from a flat plate at all
     sonar_half_beam_deg: float = 15.0  # horizontal sonars: half-width of the beam
     sonar_beam_rays: int = 5  # rays across the beam (odd: one on the axis)
 
@@ -84,9 +115,14 @@ class SensorFaults:
     spurious_max_range: dict = field(default_factory=dict)  # SensorName -> probability at grazing incidence
     range_loss: bool = False  # every range sensor silent
     flow_quality_zero: frozenset = frozenset()  # SensorName (bottom_flow, front_flow)
+    low_texture: dict = field(default_factory=dict)  # SensorName (a flow) -> share of texture and light lost
+    vibration_m_s2: float = 0.0  # rotor vibration added to the IMU's (std of the 50 Hz mean)
 
     def any(self) -> bool:
-        return bool(self.packet_loss or self.stuck or self.spurious_max_range or self.range_loss or self.flow_quality_zero)
+        return bool(
+            self.packet_loss or self.stuck or self.spurious_max_range or self.range_loss or self.flow_quality_zero
+            or self.low_texture or self.vibration_m_s2
+        )
 
 
 NO_FAULTS = SensorFaults()
@@ -119,12 +155,47 @@ def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, f
     return tuple((math.cos(axis_yaw_rad + o), math.sin(axis_yaw_rad + o), 0.0) for o in offsets)
 
 
-def _heading_velocity(sim: QuadrotorSim) -> tuple[float, float, float]:
-    """The vehicle's velocity (m/s) in the heading frame (rotated by the yaw only)."""
+def _body_kinematics(sim: QuadrotorSim) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The vehicle's velocity (m/s) and angular rates (rad/s) in the body frame."""
     vx, vy, vz = sim.velocity
-    _, _, yaw = sim.euler()
-    c, sn = math.cos(yaw), math.sin(yaw)
-    return c * vx + sn * vy, -sn * vx + c * vy, vz
+    R0, R1, R2, R3, R4, R5, R6, R7, R8 = sim.rotation().ravel().tolist()
+    return (R0 * vx + R3 * vy + R6 * vz, R1 * vx + R4 * vy + R7 * vz, R2 * vx + R5 * vy + R8 * vz), sim.body_rates
+
+
+class AttitudeError:
+    """Error of the autopilot's roll and pitch estimate, advanced at each IMU reading (rad):
+    a constant level bias, an Ornstein-Uhlenbeck drift, the share of the apparent tilt that a
+    sustained horizontal acceleration leaves in an accelerometer-referenced filter (built up and
+    faded over ``accel_tau_s``), the gyro scale error's residue after a fast rotation, and noise
+    that grows with the vibration."""
+
+    def __init__(self, spec: AttitudeSpec, seed: int) -> None:
+        self.s = spec
+        self.noise = _NormalStream(seed, block=1024)
+        g = self.noise.gauss
+        self.bias = (g(0.0, spec.level_bias_rad), g(0.0, spec.level_bias_rad))
+        self.drift = [g(0.0, spec.drift_rad), g(0.0, spec.drift_rad)]
+        self.scale = (g(0.0, spec.gyro_scale), g(0.0, spec.gyro_scale))
+        self.accel = [0.0, 0.0]
+        self.gyro = [0.0, 0.0]
+
+    def advance(self, dt: float, a_heading: tuple[float, float], rates: tuple[float, float], vibration_m_s2: float) -> tuple[float, float]:
+        """(roll error, pitch error) after ``dt`` with heading-frame acceleration ``a_heading``
+        (x, y) and body rates ``rates`` (p, q)."""
+        s, g = self.s, self.noise.gauss
+        kd = dt / s.drift_tau_s
+        sd = s.drift_rad * math.sqrt(2.0 * kd)
+        ka = min(1.0, dt / s.accel_tau_s)
+        # An accelerometer taken for gravity while accelerating at a: roll a_y/g, pitch -a_x/g.
+        apparent = (a_heading[1] / G_M_S2, -a_heading[0] / G_M_S2)
+        sv = s.vibration_rad_per_m_s2 * vibration_m_s2
+        out = []
+        for i in range(2):
+            self.drift[i] += -kd * self.drift[i] + sd * g(0.0, 1.0)
+            self.accel[i] += ka * (s.accel_coupling * apparent[i] - self.accel[i])
+            self.gyro[i] += self.scale[i] * rates[i] * dt - ka * self.gyro[i]
+            out.append(self.bias[i] + self.drift[i] + self.accel[i] + self.gyro[i] + sv * g(0.0, 1.0))
+        return out[0], out[1]
 
 
 _RANGE_CHANNELS = frozenset({"bottom_sonar", "front_sonar", "left_sonar", "right_sonar", "bottom_tof"})
@@ -172,6 +243,17 @@ class SensorSuite:
         self._imu_prev = None
         self._next_due = 0.0
         self._imu_bias = tuple(r.gauss(0, self.s.imu.bias_m_s2) for _ in range(3))
+        # Gyro, PX4Flow gyro and attitude-estimate errors: generators of their own.
+        er = random.Random(seed * 7919 + 31)
+        self._gyro_bias = tuple(er.gauss(0, self.s.imu.gyro_bias_rad_s) for _ in range(3))
+        fl_ = self.s.flow
+        self._px_gyro = {
+            k: (tuple(er.gauss(0, fl_.gyro_bias_rad_s) for _ in range(2)), tuple(er.gauss(0, fl_.gyro_scale) for _ in range(2)))
+            for k in ("bottom_flow", "front_flow")
+        }
+        self.attitude_error = AttitudeError(self.s.attitude, seed * 104729 + 37)
+        self.echo_rng = random.Random(seed * 15485863 + 41)  # sonar misses at shallow incidence
+        self._px_true: dict[str, float | None] = {"bottom_flow": None, "front_flow": None}
         self.noise = _NormalStream(seed * 104729 + 11)  # per-sample measurement noise
         # Heading drift of a gyro-only attitude estimate (no usable compass in a steel hold); its
         # own generator, so the other noise sequences stay as they were.
@@ -196,6 +278,8 @@ class SensorSuite:
         self._channels = tuple((name, ch, self._owner[name], self._dirs.get(name)) for name, ch in self.ch.items())
 
     def _imu(self, now: float, sim: QuadrotorSim) -> ImuReading | None:
+        """Mean specific force since the last reading (finite difference of the true velocity,
+        gravity added, turned into the body frame), gyro rates, and the attitude estimate."""
         v = sim.velocity
         prev, self._imu_prev = self._imu_prev, (now, v)
         if prev is None or now <= prev[0]:
@@ -203,16 +287,26 @@ class SensorSuite:
         t0, (vx0, vy0, vz0) = prev
         dt = now - t0
         ax, ay, az = (v[0] - vx0) / dt, (v[1] - vy0) / dt, (v[2] - vz0) / dt
-        _, _, yaw = sim.euler()
-        c, sn = math.cos(yaw), math.sin(yaw)
-        g, sigma = self.noise.gauss, self.s.imu.noise_m_s2
+        R0, R1, R2, R3, R4, R5, R6, R7, R8 = sim.rotation().ravel().tolist()
+        fz_w = az + G_M_S2
+        spec = self.s.imu
+        vib = spec.vibration_m_s2 + self._faults.vibration_m_s2
+        g, sigma = self.noise.gauss, math.sqrt(spec.noise_m_s2 ** 2 + vib * vib)
         b = self._imu_bias
+        fx = R0 * ax + R3 * ay + R6 * fz_w + b[0] + g(0.0, sigma)
+        fy = R1 * ax + R4 * ay + R7 * fz_w + b[1] + g(0.0, sigma)
+        fz = R2 * ax + R5 * ay + R8 * fz_w + b[2] + g(0.0, sigma)
+        roll, pitch, yaw = sim.euler()
+        p, q, r = sim.body_rates
+        c, sn = math.cos(yaw), math.sin(yaw)
+        d_roll, d_pitch = self.attitude_error.advance(dt, (c * ax + sn * ay, -sn * ax + c * ay), (p, q), vib)
+        sim.attitude_error = (d_roll, d_pitch)  # the firmware levels its estimate, not the truth
+        gb, gs = self._gyro_bias, spec.gyro_noise_rad_s
         return ImuReading(
-            now,
-            c * ax + sn * ay + b[0] + g(0.0, sigma),
-            -sn * ax + c * ay + b[1] + g(0.0, sigma),
-            az + b[2] + g(0.0, sigma),
+            now, fx, fy, fz,
             yaw + self._yaw_drift_rad_s * now,  # the autopilot's gyro-integrated heading
+            roll + d_roll, pitch + d_pitch,
+            p + gb[0] + g(0.0, gs), q + gb[1] + g(0.0, gs), r + gb[2] + g(0.0, gs),
         )
 
     def _range(self, spec: RangeSpec, true_m: float | None) -> float | None:
@@ -238,7 +332,7 @@ class SensorSuite:
             return
         self._faults = faults
         faulty = faults is not NO_FAULTS and faults.any()
-        pos = v_heading = None  # the vehicle's state, read once per sample
+        pos = kin = None  # the vehicle's state, read once per sample
         next_due = math.inf
         for name, ch, owner, dirs in self._channels:
             next_t = ch.next_t
@@ -252,6 +346,7 @@ class SensorSuite:
             if (dropped and owner in dropped) or (faults.range_loss and name in _RANGE_CHANNELS):
                 if name.endswith("flow") or (faults.range_loss and name in ("bottom_sonar", "front_sonar")):
                     self._px_range[name.replace("sonar", "flow")] = None
+                    self._px_true[name.replace("sonar", "flow")] = None
                 continue
             stamp = t + ch.latency  # delivery time: what the onboard clock stamps
             if faulty:
@@ -261,9 +356,9 @@ class SensorSuite:
                     ch.queue.append((stamp, dataclasses.replace(ch.last_value, stamp_s=stamp)))
                     continue
             if dirs is None:
-                if v_heading is None:
-                    v_heading = _heading_velocity(sim)
-                value = self._measure_flow(name, owner, v_heading, stamp)
+                if kin is None:
+                    kin = _body_kinematics(sim)
+                value = self._measure_flow(name, owner, kin, stamp)
             else:
                 if pos is None:
                     pos = sim.position
@@ -272,51 +367,76 @@ class SensorSuite:
             ch.queue.append((stamp, value))
         self._next_due = next_due
 
+    def _echo_heard(self, incidence_rad: float) -> bool:
+        """Whether a sonar ray meeting a flat surface at ``incidence_rad`` from its normal hears
+        the echo: always within ``grazing_deg``, never beyond ``miss_all_deg``, linear between."""
+        s = self.s
+        lo, hi = math.radians(s.grazing_deg), math.radians(s.miss_all_deg)
+        if incidence_rad <= lo:
+            return True
+        return incidence_rad < hi and self.echo_rng.random() >= (incidence_rad - lo) / (hi - lo)
+
     def _measure_range(self, name: str, owner: SensorName, dirs, sim: QuadrotorSim, pos, stamp: float) -> RangeReading:
         """The nearest echo over the sensor's rays, with noise."""
         s = self.s
         if name == "bottom_tof":
-            spec, spurious = s.tof, None
+            spec, spurious, accept = s.tof, None, None  # a laser's diffuse return: no specular miss
         else:
             spurious_faults = self._faults.spurious_max_range
-            spec, spurious = s.sonar, spurious_faults.get(owner) if spurious_faults else None
-        rng = self._range(spec, sim.first_echo(pos, dirs))
+            spec, spurious, accept = s.sonar, spurious_faults.get(owner) if spurious_faults else None, self._echo_heard
+        true_m = sim.first_echo(pos, dirs, accept)
+        rng = self._range(spec, true_m)
         # A reading implies an echo: the incidence is that of the ray that made it.
         if spurious and rng is not None and sim.incidence_rad() > math.radians(s.grazing_deg):
             if self.fault_rng.random() < spurious:
                 rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
         if name == "bottom_sonar":
-            self._px_range["bottom_flow"] = rng
+            self._px_range["bottom_flow"], self._px_true["bottom_flow"] = rng, true_m
         elif name == "front_sonar":
-            self._px_range["front_flow"] = rng
+            self._px_range["front_flow"], self._px_true["front_flow"] = rng, true_m
         return RangeReading(stamp, rng)
 
-    def _measure_flow(self, name: str, owner: SensorName, v_heading, stamp: float) -> BottomFlow | FrontFlow:
-        """Optical flow, in the heading frame (gyro-compensated), scaled by the unit's sonar;
-        ``v_heading``: the vehicle's velocity in the heading frame."""
-        hx, hy, vz = v_heading
+    def _measure_flow(self, name: str, owner: SensorName, kin, stamp: float) -> BottomFlow | FrontFlow:
+        """PX4Flow output (metric, sensor frame = body axes): angular flow = velocity across the
+        optical axis / distance along it + the body rotation; the unit's gyro takes the rotation
+        out (its bias and scale error stay), its sonar's last range scales to m/s. ``kin``: body
+        velocity and rates."""
+        (vbx, vby, vbz), (p, q, r) = kin
         fl = self.s.flow
-        scale_range = self._px_range[name]
-        bx, by = self.bias[name]
+        scale_range, true_range = self._px_range[name], self._px_true[name]
         g = self.noise.gauss
-        if scale_range is None:
-            sigma, quality = 0.0, 0
-        else:
-            sigma, quality = fl.noise_m_s + fl.noise_per_m * scale_range, fl.quality + int(g(0.0, 15.0))
+        faults = self._faults
+        if scale_range is None or not true_range:
+            return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, 0.0, 0.0, 0)  # no metric scale
+        # Image quality: texture (the low_texture fault takes a share away) and light (the
+        # vehicle's own light falls off as 1/d^2 beyond ``light_range_m``).
+        texture = 1.0 - faults.low_texture.get(owner, 0.0) if faults.low_texture else 1.0
+        light = min(1.0, (fl.light_range_m / true_range) ** 2)
+        share = texture * light
+        quality = int(fl.quality * share + g(0.0, 15.0))
         quality = 0 if quality < 0 else 255 if quality > 255 else quality  # 0..255
-        if self._faults.flow_quality_zero and owner in self._faults.flow_quality_zero:
+        if faults.flow_quality_zero and owner in faults.flow_quality_zero:
             quality = 0
-        if sigma == 0.0:
-            a = b = 0.0  # no metric scale without an echo
-        elif name == "bottom_flow":
-            a, b = hx + bx + g(0.0, sigma), hy + by + g(0.0, sigma)
+        sigma = fl.noise_rad_s * (1.0 + 3.0 * (1.0 - share))
+        (gbx, gby), (gsx, gsy) = self._px_gyro[name]
+        gn = fl.gyro_noise_rad_s
+        if name == "bottom_flow":
+            # Camera along -z: x flow = vx/d - q, y flow = vy/d + p (rotation in rad/s).
+            across, rot = (vbx, vby), (-q, p)
         else:
-            a, b = hy + bx + g(0.0, sigma), vz + by + g(0.0, sigma)
-        return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, a, b, quality)
+            # Camera along +x: y flow = vy/d + r, z flow = vz/d - q.
+            across, rot = (vby, vbz), (r, -q)
+        bx, by = self.bias[name]
+        out = []
+        for v, w, gb, gsc, b in ((across[0], rot[0], gbx, gsx, bx), (across[1], rot[1], gby, gsy, by)):
+            flow_rad_s = v / true_range + w
+            compensated = flow_rad_s - (w * (1.0 + gsc) + gb + g(0.0, gn))
+            out.append((compensated + g(0.0, sigma)) * scale_range + b)
+        return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, out[0], out[1], quality)
 
     def read(self, now: float, sim: QuadrotorSim) -> Measurements:
-        """Latest reading each sensor has delivered by ``now``, and the IMU's mean acceleration
-        since the previous read (heading frame, gravity removed)."""
+        """Latest reading each sensor has delivered by ``now``, and the IMU's mean specific force
+        since the previous read (body frame) with the autopilot's attitude estimate."""
         latest = {name: ch.deliver(now) for name, ch in self.ch.items()}
         return Measurements(imu=self._imu(now, sim), **latest)
 

@@ -2,8 +2,15 @@
 
 The vehicle is an AscTec Hummingbird-like quadrotor built from primitive shapes (0.71 kg with the
 inspection payload, thrust-to-weight 2.2). The firmware tracks roll, pitch, yaw rate and collective
-thrust set-points (``AttitudeSetpoint``) at the physics rate, with first-order motor lag; rotor drag
-and a slowly varying air disturbance act on the body. Headless, deterministic for a seed.
+thrust set-points (``AttitudeSetpoint``) at the physics rate: its PD attitude law, acting on the
+autopilot's attitude ESTIMATE (``attitude_error`` away from the truth), asks for body
+torques and a collective thrust, and a mixer turns them into four motor thrusts in the "+"
+layout, attitude first (roll and pitch are scaled down only when no collective fits them in the
+motors' range, then the collective is chosen closest to the set-point, then yaw gets what is left:
+PX4's and ArduPilot's desaturation order). Each motor has its own first-order lag and its own
+maximum (a weak motor runs out of authority), its thrust gains ground effect near the floor, and
+its drag torque turns the vehicle. Rotor drag and a slowly varying air disturbance act on the
+body. Headless, deterministic for a seed.
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ import numpy as np
 from inspect_pipe.flight.scenario import World
 from inspect_pipe.flight_stack.messages import AttitudeSetpoint
 
-__all__ = ["AttitudeFirmware", "QuadrotorSim", "VehicleModel", "build_mjcf"]
+__all__ = ["AttitudeFirmware", "QuadrotorSim", "VehicleModel", "build_mjcf", "mix"]
 
 G = 9.81
 
@@ -34,6 +41,7 @@ class VehicleModel:
     drag_linear_n_s_m: float = 0.25  # rotor drag, N per m/s
     drag_quadratic_n_s2_m2: float = 0.05
     motor_time_constant_s: float = 0.03
+    rotor_torque_m: float = 0.0245  # rotor drag torque per newton of thrust (k_M / k_F of the Hummingbird)
     disturbance_force_n: float = 0.03  # std of the air disturbance
     disturbance_time_constant_s: float = 2.0
 
@@ -51,6 +59,37 @@ class AttitudeFirmware:
     omega_yaw_rad_s: float = 8.0
     zeta_yaw: float = 0.9
     max_tilt_rad: float = 0.6
+
+
+def mix(
+    thrust_n: float, tx: float, ty: float, tz: float, arm_m: float, torque_m: float, motor_max_n: list[float]
+) -> tuple[float, float, float, float]:
+    """Motor thrusts (N) for a collective ``thrust_n`` and body torques (N m), "+" layout (motors
+    at +x, +y, -x, -y; 0 and 2 make +torque_m x thrust of yaw torque, 1 and 3 the opposite), each
+    within [0, ``motor_max_n[i]``]. Attitude first: roll and pitch are scaled down only as far as
+    no collective fits them in, the collective is the one closest to ``thrust_n`` that does, and
+    yaw gets what headroom is left."""
+    rp = (-ty / (2.0 * arm_m), tx / (2.0 * arm_m), ty / (2.0 * arm_m), -tx / (2.0 * arm_m))
+    s = 1.0
+    for i in range(4):
+        for j in range(4):
+            gap = rp[j] - rp[i]
+            if gap > 0.0 and motor_max_n[j] < s * gap:
+                s = motor_max_n[j] / gap  # motor j at its top while motor i is at zero
+    rp = tuple(s * v for v in rp)
+    lo = max(-v for v in rp)
+    hi = min(mx - v for mx, v in zip(motor_max_n, rp))
+    c = max(lo, min(hi, 0.25 * thrust_n))
+    base = [c + v for v in rp]
+    yw = tz / (4.0 * torque_m)
+    yaw = (yw, -yw, yw, -yw)
+    k = 1.0
+    for b, y, mx in zip(base, yaw, motor_max_n):
+        if y > 0.0 and b + k * y > mx:
+            k = max(0.0, (mx - b) / y)
+        elif y < 0.0 and b + k * y < 0.0:
+            k = max(0.0, -b / y)
+    return tuple(max(0.0, min(mx, b + k * y)) for b, y, mx in zip(base, yaw, motor_max_n))  # type: ignore[return-value]
 
 
 def build_mjcf(world: World, vehicle: VehicleModel, start: tuple[float, float, float], yaw: float, timestep_s: float) -> str:
@@ -145,6 +184,14 @@ class QuadrotorSim:
         # the share of maximum thrust still available (battery sag).
         self.wind_m_s = (0.0, 0.0, 0.0)
         self.thrust_available = 1.0
+        # Each motor's share of its nominal maximum thrust (a weak motor: below 1). Motors 0..3 at
+        # +x (front), +y (left), -x, -y; 0 and 2 turn one way, 1 and 3 the other.
+        self.motor_health = [1.0, 1.0, 1.0, 1.0]
+        self.motor_n = [0.0, 0.0, 0.0, 0.0]  # each motor's thrust (N), after its lag
+        # The autopilot's attitude estimate less the truth (roll, pitch; rad), set by the sensor
+        # suite's attitude model: the firmware's attitude law acts on its estimate, so a vehicle
+        # "level" by its estimate is tilted by this and accelerates at g x error.
+        self.attitude_error = (0.0, 0.0)
 
     # ------------------------------------------------------------------ state
     @property
@@ -215,10 +262,20 @@ class QuadrotorSim:
         sp = self.setpoint
         roll_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.roll_rad))
         pitch_sp = max(-fw.max_tilt_rad, min(fw.max_tilt_rad, sp.pitch_rad))
-        thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax * self.thrust_available
+        # A sagging battery lowers what every command gives; a weak motor gives its share of the
+        # command (the firmware does not know: its mixer plans with the nominal range).
+        avail = self.thrust_available
+        thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax * avail
+        motor_max = [0.25 * tmax * avail] * 4
+        health = self.motor_health
+        arm, km = veh.arm_m, veh.rotor_torque_m
+        r_ge = veh.rotor_radius_m / 4.0
+        z_rotor = 0.02  # rotor plane above the body origin
         yaw_rate_sp = sp.yaw_rate_rad_s
         yaw_sp_step = yaw_rate_sp * dt
         wx, wy, wz = self.wind_m_s
+        motors = self.motor_n
+        err_r, err_p = self.attitude_error
         armed = thrust_sp > 0.0 or self.thrust_n > 0.01
         # Air disturbance: only while armed, constant over the call.
         fx, fy, fz = dist if armed else (0.0, 0.0, 0.0)
@@ -227,23 +284,34 @@ class QuadrotorSim:
             due = math.inf
         else:
             due = getattr(after_step, "next_due_s", -math.inf)
-        t, T, yaw_sp = self.t, self.thrust_n, self.yaw_sp
+        t, yaw_sp = self.t, self.yaw_sp
         roll, pitch, yaw = self.euler()
         for _ in range(n):
             vx, vy, vz, p, q, r = qvel.tolist()
             vx, vy, vz = vx - wx, vy - wy, vz - wz  # air-relative: drag pushes towards the wind
-            T += alpha * (thrust_sp - T)  # motor lag
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             cd = c1 + c2 * speed
             if armed:
                 yaw_sp += yaw_sp_step
                 yaw_err = (yaw_sp - yaw + pi) % two_pi - pi
-                tx = ixx * (kp_rp * (roll_sp - roll) - kd_rp * p)
-                ty = iyy * (kp_rp * (pitch_sp - pitch) - kd_rp * q)
+                tx = ixx * (kp_rp * (roll_sp - roll - err_r) - kd_rp * p)
+                ty = iyy * (kp_rp * (pitch_sp - pitch - err_p) - kd_rp * q)
                 tz = izz * (kp_y * yaw_err + kd_y * (yaw_rate_sp - r))
+                cmd = mix(thrust_sp, tx, ty, tz, arm, km, motor_max)
             else:
                 yaw_sp = yaw
-                tx = ty = tz = 0.0
+                cmd = (0.0, 0.0, 0.0, 0.0)
+            for i in range(4):
+                motors[i] += alpha * (health[i] * cmd[i] - motors[i])  # motor lag
+            m0, m1, m2, m3 = motors
+            # Ground effect (Cheeseman and Bennett): T / T_inf = 1 / (1 - (R / 4z)^2) over the floor,
+            # taken no closer than z = R / 2, where the formula stops holding.
+            zr = max(qpos[2] + z_rotor, 2.0 * r_ge)
+            ge = 1.0 / (1.0 - (r_ge / zr) ** 2)
+            T = ge * (m0 + m1 + m2 + m3)
+            tx = ge * arm * (m1 - m3)
+            ty = ge * arm * (m2 - m0)
+            tz = ge * km * (m0 - m1 + m2 - m3)
             # Thrust along the body z axis, drag and disturbance (world frame); torques rotated
             # from the body to the world frame.
             R = body_R.tolist()
@@ -261,16 +329,19 @@ class QuadrotorSim:
                 after_step(self)  # type: ignore[misc]
                 due = getattr(after_step, "next_due_s", -math.inf)
                 t = self.t
-        self.t, self.thrust_n, self.yaw_sp = t, T, yaw_sp
+            self.thrust_n = T
+        self.t, self.yaw_sp = t, yaw_sp
 
     # ------------------------------------------------------------------ sensing
     def ray(self, origin: tuple[float, float, float], direction_body: tuple[float, float, float]) -> float | None:
         """Distance along a body-frame direction from ``origin`` (world) to the scene, or None."""
         return self.first_echo(origin, (direction_body,))
 
-    def first_echo(self, origin: tuple[float, float, float], directions_body) -> float | None:
+    def first_echo(self, origin: tuple[float, float, float], directions_body, accept=None) -> float | None:
         """Nearest hit (m) over rays along body-frame directions from ``origin`` (world), or None
-        if none hits; ``incidence_rad`` then describes that ray (the first of equally near ones)."""
+        if none hits; ``incidence_rad`` then describes that ray (the first of equally near ones).
+        ``accept(incidence_rad) -> bool``, when given, decides for each ray that hits whether its
+        echo is heard (a sonar misses at shallow incidence)."""
         R0, R1, R2, R3, R4, R5, R6, R7, R8 = self._xmat.tolist()
         m, d, body = self.model, self.data, self.body
         v, pnt, geomid = self._ray_vec, self._ray_pnt, self._geomid
@@ -284,21 +355,25 @@ class QuadrotorSim:
             v[0], v[1], v[2] = ux, uy, uz
             dist = mujoco.mj_ray(m, d, pnt, v, None, True, body, geomid)
             if dist >= 0 and (best is None or dist < best):
+                if accept is not None and not accept(self._incidence(origin, (ux, uy, uz), float(dist), int(geomid[0]))):
+                    continue
                 best = dist
                 hit = (ux, uy, uz), int(geomid[0])
         if best is None:
             return None
-        # Incidence is worked out on demand (only the spurious-echo fault needs it).
         best = float(best)
         self._last_hit = (origin, hit[0], best, hit[1])
         return best
 
-    def incidence_rad(self) -> float:
-        """Angle between the last ray that hit and the normal of the surface it hit (rad); the
-        hit face is the one of the (axis-aligned box) geom the hit point is farthest out on."""
-        if self._last_hit is None:
-            return 0.0
-        pnt, v, dist, g = self._last_hit
+    def _incidence(self, pnt, v, dist: float, g: int) -> float:
+        """Angle between a ray and the normal of the surface it hit (rad); the hit face is the one
+        of the (axis-aligned box) geom the hit point is farthest out on."""
         c, half = self.model.geom_pos[g], self.model.geom_size[g]
         k = max(range(3), key=lambda i: abs(pnt[i] + dist * v[i] - c[i]) / half[i])
         return math.acos(min(1.0, abs(float(v[k]))))
+
+    def incidence_rad(self) -> float:
+        """Incidence of the last ray that hit (see ``_incidence``)."""
+        if self._last_hit is None:
+            return 0.0
+        return self._incidence(*self._last_hit)

@@ -75,8 +75,11 @@ class FlightMachine:
             elif est.mode >= 0 and est.height_m >= p.takeoff_end_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
                 self._go(FlightState.FLYING, now)
         elif s is FlightState.FLYING or s is FlightState.DESCENDING:
-            alarm = est.mode < 0
-            if alarm and ev.impact:
+            # No measured height (alarm modes; mode 3 integrates it): the floor's jolt is the
+            # touchdown. A vehicle that drifted into front-wall range during an alarm descent
+            # reached the floor in mode 3 and sat there "flying".
+            unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT
+            if unmeasured and ev.impact:
                 self._go(FlightState.LANDING, now)
                 self.touchdown_s = now
             elif s is FlightState.FLYING and ev.land_requested:
@@ -88,13 +91,14 @@ class FlightMachine:
             # in mode -1 only the TeraRanger measures, down to 0.2 m: at 0.35 m the thrust ramp
             # began 0.27 m above the floor and the vehicle dropped onto it at 1 m/s).
             down_m = 0.25 if est.mode == EstimationMode.ALARM_TOF else 0.35
+            unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT  # no measured height
             on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
             # The time-out stands in for a touchdown the sensors cannot confirm; with a valid
             # height well above the floor, or still descending, the vehicle is not down (safety campaign: a battery sag
             # ended mid-landing, the vehicle climbed back to 1 m, the time-out cut the thrust
             # there and it fell at 2.3 m/s).
             timed_out = self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0 and (
-                est.mode < 0 or (est.height_m <= 0.5 and abs(est.vz_m_s) < 0.1)
+                unmeasured or (est.height_m <= 0.5 and abs(est.vz_m_s) < 0.1)
             )
             # On the ground for a moment, not at a bounce's turning point (safety campaign: a
             # battery sag's recovery bounced the vehicle through 0.35 m with zero speed; the ramp
@@ -104,7 +108,7 @@ class FlightMachine:
                 self._ground_s = self._ground_s + dt
             else:
                 self._ground_s = 0.0
-            if self.touchdown_s is not None and est.mode >= 0 and (est.height_m > 0.5 or est.vz_m_s > 0.2):
+            if self.touchdown_s is not None and not unmeasured and (est.height_m > 0.5 or est.vz_m_s > 0.2):
                 self.touchdown_s = None
                 self._bounced = True
             # After a bounce, the top of the next hop also reads "at the sensor's minimum, not

@@ -8,6 +8,7 @@ gyro-compensated PX4Flow reports.
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 
@@ -84,19 +85,62 @@ class FrontFlow:
     quality: int
 
 
+G_M_S2 = 9.81  # standard gravity
+
+
 @dataclass(frozen=True, slots=True)
 class ImuReading:
-    """Acceleration from the autopilot's IMU, gravity removed, in the heading frame (m/s^2),
-    averaged since the previous reading."""
+    """The autopilot's IMU and attitude estimate, as the companion computer receives them.
+
+    ``f*_m_s2``: the accelerometer's specific force in the body frame (x forward, y left, z up;
+    m/s^2), mean since the previous reading: gravity included (at rest and level it reads
+    (0, 0, +9.81)), with the sensor's bias, noise and vibration. ``roll_rad``/``pitch_rad``: the
+    autopilot's attitude ESTIMATE, not the truth; ``yaw_rad`` its heading (world frame, x forward,
+    y left; None when the link does not carry it; gyro-integrated in a steel hold, so only changes
+    over a few seconds are used). ``p/q/r_rad_s``: body rates from the gyro.
+
+    ``ax_m_s2``/``ay_m_s2``/``az_m_s2``: the acceleration in the heading frame, worked out as the
+    autopilot would: the specific force turned by the ESTIMATED roll and pitch, gravity removed.
+    Every degree of attitude error is 0.17 m/s^2 of false horizontal acceleration.
+    """
 
     stamp_s: float
-    ax_m_s2: float
-    ay_m_s2: float
-    az_m_s2: float
-    # Heading from the autopilot's attitude estimate (world frame, x forward, y left, rad); None
-    # when the link does not carry it. Gyro-integrated in a steel hold: only changes over a few
-    # seconds are used (the obstacle memory).
+    fx_m_s2: float
+    fy_m_s2: float
+    fz_m_s2: float
     yaw_rad: float | None = None
+    roll_rad: float = 0.0
+    pitch_rad: float = 0.0
+    p_rad_s: float = 0.0
+    q_rad_s: float = 0.0
+    r_rad_s: float = 0.0
+
+    @staticmethod
+    def level(
+        stamp_s: float, ax_m_s2: float, ay_m_s2: float, az_m_s2: float, yaw_rad: float | None = None
+    ) -> "ImuReading":
+        """What a level vehicle accelerating at (ax, ay, az) in the heading frame reads."""
+        return ImuReading(stamp_s, ax_m_s2, ay_m_s2, az_m_s2 + G_M_S2, yaw_rad)
+
+    def heading_accel(self) -> tuple[float, float, float]:
+        """(ax, ay, az) in the heading frame: R_y(pitch) R_x(roll) f - (0, 0, g), estimated attitude."""
+        cr, sr = math.cos(self.roll_rad), math.sin(self.roll_rad)
+        cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
+        fx, fy, fz = self.fx_m_s2, self.fy_m_s2, self.fz_m_s2
+        fy2, fz2 = cr * fy - sr * fz, sr * fy + cr * fz
+        return cp * fx + sp * fz2, fy2, -sp * fx + cp * fz2 - G_M_S2
+
+    @property
+    def ax_m_s2(self) -> float:
+        return self.heading_accel()[0]
+
+    @property
+    def ay_m_s2(self) -> float:
+        return self.heading_accel()[1]
+
+    @property
+    def az_m_s2(self) -> float:
+        return self.heading_accel()[2]
 
 
 @dataclass(frozen=True, slots=True)

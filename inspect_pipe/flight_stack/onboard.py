@@ -103,6 +103,10 @@ class OnboardStack:
         names = beh.behaviors
         imu = measurements.imu
         accel = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else None
+        if state is not FlightState.LANDED:
+            # In flight the estimator learns the bias from the flow speeds; the disturbance
+            # observers take it from there (one bias, not two).
+            ctrl.obs_x.bias, ctrl.obs_y.bias, ctrl.obs_z.bias = self.state_updater.imu_bias
         if state is FlightState.LANDED:
             ctrl.reset()
             if self._last_thrust == 0.0:

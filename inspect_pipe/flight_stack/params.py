@@ -44,6 +44,13 @@ class EstimationParams:
     height_step_settle_samples: int = param(
         2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
     )
+    imu_bias_tau_s: float = param(
+        3.0, 0.5, 60.0, "s", "in flight, the accelerometer's heading-frame bias (attitude-estimate error included) "
+        "is learnt from the flow speeds at this time constant"
+    )
+    imu_bias_gate_m_s: float = param(
+        0.3, 0.05, 2.0, "m/s", "bias learning: a flow speed further than this from the IMU-propagated one restarts it"
+    )
     alarm_climb_m_s: float = param(0.2, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes: the steady alarm descent speed")
     alarm_descent_delay_s: float = param(
         1.0, 0.0, 10.0, "s", "alarm modes: '+val.' is filled in (the descent begins) once the alarm mode has lasted this long"
@@ -158,7 +165,7 @@ class ControlParams:
         0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
     )
     speed_integral_leak_s: float = param(
-        2.0, 0.0, 60.0, "s", "XY speed integrators leak at this time constant while the horizontal observers run (0: no leak)"
+        0.0, 0.0, 60.0, "s", "XY speed integrators leak at this time constant while the horizontal observers run (0: no leak)"
     )
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"

@@ -17,11 +17,11 @@ def test_alarm_mode_carries_the_speed_with_the_imu_and_leaks_it_to_zero():
     upd._dr_v = (0.5, 0.0)  # moving forward at 0.5 m/s when the last reference sensor went silent
     est = None
     for k in range(0, 21):  # 0.4 s braking at 1 m/s^2
-        est, _ = upd.update(k * 0.02, Measurements(imu=ImuReading(k * 0.02, -1.0, 0.0, 0.0)))
+        est, _ = upd.update(k * 0.02, Measurements(imu=ImuReading.level(k * 0.02, -1.0, 0.0, 0.0)))
     assert est.mode == EstimationMode.ALARM_NONE
     assert 0.05 < est.vx_m_s < 0.1  # 0.5 - 0.4, a little leaked: the braking is seen
     for k in range(21, 400):  # coasting with no acceleration: the estimate leaks to zero
-        est, _ = upd.update(k * 0.02, Measurements(imu=ImuReading(k * 0.02, 0.0, 0.0, 0.0)))
+        est, _ = upd.update(k * 0.02, Measurements(imu=ImuReading.level(k * 0.02, 0.0, 0.0, 0.0)))
     assert 0.0 <= est.vx_m_s < 0.01
 
 

@@ -45,7 +45,7 @@ def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, 
         bottom_tof=RangeReading(t, height) if tof else None,
         front_flow=FrontFlow(t, vy + 0.01, vz, 200) if front else None,
         front_sonar=RangeReading(t, front_range) if front else None,
-        imu=ImuReading(t, 0.0, 0.0, 0.0),
+        imu=ImuReading.level(t, 0.0, 0.0, 0.0),
     )
 
 
@@ -164,7 +164,7 @@ def test_range_slope_fits_the_closing_rate_and_resets_on_gaps_and_missing_echoes
 def test_a_flow_repeating_its_speed_while_the_imu_says_it_changed_is_stuck_and_dropped():
     def meas(t, bottom_vx, bottom_vy, ax=0.0):
         m = _meas(t)  # live (jittered) front flow and ranges
-        return dataclasses.replace(m, bottom_flow=BottomFlow(t, bottom_vx, bottom_vy, 200), imu=ImuReading(t, ax, 0.0, 0.0))
+        return dataclasses.replace(m, bottom_flow=BottomFlow(t, bottom_vx, bottom_vy, 200), imu=ImuReading.level(t, ax, 0.0, 0.0))
 
     # GIVEN a bottom flow that repeats -0.43 m/s exactly, freshly stamped (a hung driver), while
     # the IMU says the vehicle accelerates forwards at 2 m/s^2
@@ -212,7 +212,7 @@ def test_a_near_zero_flow_repeated_while_the_imu_accelerates_is_stuck():
     for k in range(20):
         t = 1.0 + 0.02 * k
         m = _meas(t)
-        m = dataclasses.replace(m, front_flow=FrontFlow(t, 0.0, 0.03, 200), imu=ImuReading(t, 0.0, 0.0, -1.5))
+        m = dataclasses.replace(m, front_flow=FrontFlow(t, 0.0, 0.03, 200), imu=ImuReading.level(t, 0.0, 0.0, -1.5))
         modes.append(upd.update(t, m)[0].mode)
     # THEN once the IMU's speed change passes 0.15 m/s the front flow is dropped: mode 0
     assert modes[2] == EstimationMode.BOTTOM_FRONT
@@ -227,7 +227,7 @@ def _alarm_meas(t, *, left, right, front=None, yaw=0.0):
         front_sonar=None if front is None else RangeReading(ts, front(ts)),
         left_sonar=RangeReading(ts, left(ts)),
         right_sonar=RangeReading(ts, right(ts)),
-        imu=ImuReading(t, 0.0, 0.0, 0.0, yaw(t) if callable(yaw) else yaw),
+        imu=ImuReading.level(t, 0.0, 0.0, 0.0, yaw(t) if callable(yaw) else yaw),
     )
 
 
@@ -265,7 +265,7 @@ def test_alarm_mode_range_rates_are_not_used_while_turning_or_across_a_new_surfa
 def test_a_stuck_flow_stays_dropped_while_it_repeats_and_the_estimate_restarts_from_the_imu():
     def meas(t, ax):
         m = _meas(t, front_range=4.0)
-        return dataclasses.replace(m, bottom_flow=BottomFlow(t, -0.10, 0.0, 200), imu=ImuReading(t, ax, 0.0, 0.0))
+        return dataclasses.replace(m, bottom_flow=BottomFlow(t, -0.10, 0.0, 200), imu=ImuReading.level(t, ax, 0.0, 0.0))
 
     # GIVEN a bottom flow stuck at -0.10 m/s while the vehicle speeds up forwards at 0.5 m/s^2
     # for 0.6 s (to +0.2 m/s), then brakes at 0.5 m/s^2 (the IMU's change wanders back)
@@ -315,7 +315,7 @@ def test_alarm_mode_carried_speed_removes_the_accelerometer_bias_learnt_on_the_f
         est = None
         for k in range(250):
             t = 1.0 + 0.02 * k
-            est = upd.update(t, Measurements(imu=ImuReading(t, 0.03, 0.0, 0.03, 0.0)))[0]
+            est = upd.update(t, Measurements(imu=ImuReading.level(t, 0.03, 0.0, 0.03, 0.0)))[0]
         return est
 
     # THEN with the bias learnt on the floor removed the carried speed stays at rest
@@ -340,7 +340,7 @@ def test_a_stuck_flow_is_judged_against_the_filtered_speed_not_its_own_noisy_rea
         reading = -0.04 if stuck else true_v + rng.gauss(0.0, 0.04)
         m = dataclasses.replace(
             _meas(t, front_range=4.0), bottom_flow=BottomFlow(t, reading, 0.0, 200),
-            imu=ImuReading(t, 0.15 if stuck else 0.0, 0.0, 0.0),
+            imu=ImuReading.level(t, 0.15 if stuck else 0.0, 0.0, 0.0),
         )
         est = upd.update(t, m)[0]
         if found is None and est.mode == EstimationMode.TOF_FRONT:
@@ -377,7 +377,7 @@ def _braking_at_a_wall(upd, *, flows_until=2.0, brake_from=2.0, seconds=2.0):
             front_sonar=RangeReading(s + 0.05, 4.0 - travelled(s)),
             left_sonar=RangeReading(s + 0.05, 2.5),
             right_sonar=RangeReading(s + 0.05, 3.0),
-            imu=ImuReading(t, -0.5 if brake_from <= t < brake_from + 0.8 else 0.0, 0.0, 0.0, 0.0),
+            imu=ImuReading.level(t, -0.5 if brake_from <= t < brake_from + 0.8 else 0.0, 0.0, 0.0, 0.0),
         )
         yield t, upd.update(t, m)[0], vel(t)
 
@@ -405,7 +405,7 @@ def test_alarm_mode_carries_on_the_filtered_speed_not_the_last_noisy_reading():
             m = Measurements(
                 bottom_flow=BottomFlow(t, rng.gauss(0.0, 0.04), rng.gauss(0.0, 0.04), 200) if live else None,
                 bottom_sonar=RangeReading(t, 1.5) if live else None,
-                imu=ImuReading(t, 0.0, 0.0, 0.0, 0.0),
+                imu=ImuReading.level(t, 0.0, 0.0, 0.0, 0.0),
             )
             est = upd.update(t, m)[0]
         assert est.mode == EstimationMode.ALARM_NONE
@@ -427,7 +427,7 @@ def _coast_in_mode_minus_two(vx0, *, yaw_rate=0.0, seconds=1.0):
         m = Measurements(
             bottom_flow=BottomFlow(t, vx0, 0.0, 200) if live else None,
             bottom_sonar=RangeReading(t, 1.5) if live else None,
-            imu=ImuReading(t, 0.0, 0.0, 0.0, yaw),
+            imu=ImuReading.level(t, 0.0, 0.0, 0.0, yaw),
         )
         est = upd.update(t, m)[0]
     return est
@@ -462,7 +462,7 @@ def test_mode_two_while_turning_carries_vx_with_the_imu_not_the_front_range_rate
             bottom_tof=RangeReading(t, 1.5),
             front_flow=FrontFlow(t, 0.0, 0.0, 200),
             front_sonar=RangeReading(s + 0.05, front),
-            imu=ImuReading(t, 0.0 if mode1 else 0.5, 0.0, 0.0, 0.0 if mode1 else 0.11 * (t - 2.0)),
+            imu=ImuReading.level(t, 0.0 if mode1 else 0.5, 0.0, 0.0, 0.0 if mode1 else 0.11 * (t - 2.0)),
         )
         est = upd.update(t, m)[0]
     # THEN vx follows the IMU (0.9 m/s after 1 s), not the range's 0.2 m/s
