@@ -179,9 +179,10 @@ def import_footage(
     tc = np.array([f.t_camera_s for f in frames]) - base  # camera times on the log's clock, before the offset
     if track.utc_offset_s is not None:
         lo_ok, hi_ok = track.start_s - max_offset_s, track.end_s + max_offset_s
-        if tc[-1] < lo_ok or tc[0] > hi_ok:
+        if time_offset_s is None and (tc[-1] < lo_ok or tc[0] > hi_ok):
+            zone = " (the images have no OffsetTimeOriginal: their local time was taken as UTC)" if "taken as UTC" in footage.time_note else ""
             raise InputError(str(log_path), f"covers {utc_iso(track.start_s + base)} .. {utc_iso(track.end_s + base)}, "
-                             f"but the frames were taken {utc_iso(tc[0] + base)} .. {utc_iso(tc[-1] + base)} (camera clock)",
+                             f"but the frames were taken {utc_iso(tc[0] + base)} .. {utc_iso(tc[-1] + base)} by the camera's clock{zone}",
                              "give the log of this flight, or --time-offset when the camera clock is off by more than "
                              f"{max_offset_s:g} s")
         search = (-max_offset_s, max_offset_s)

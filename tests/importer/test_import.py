@@ -189,6 +189,10 @@ def test_a_log_that_does_not_cover_the_frames(flight, tmp_path):
     write_drone_footage(flight / "sweep", later, clock_offset_s=3600.0)
     msg = _run_bad(tmp_path, later, flight / "f.tlog")
     assert "f.tlog" in msg and "covers" in msg
+    # a camera an hour off (its time zone set wrong): --time-offset brings it in
+    res = CliRunner().invoke(app, ["import", str(later), "--log", str(flight / "f.tlog"), "-o", str(tmp_path / "hour"), "--time-offset", "3600"])
+    assert res.exit_code == 0, res.output
+    assert len(read_sweep(tmp_path / "hour").frames) >= 115
 
 
 def test_a_video_the_decoder_refuses(flight, tmp_path):
