@@ -9,7 +9,7 @@ import typer
 
 import cv2
 
-from cli._common import choices, one_line_errors
+from cli._common import StageProgress, choices, one_line_errors
 from inspect_pipe.errors import InputError
 from inspect_pipe.capture._calibration import OUTLIER_RULE, Board, calibrate_images, parse_board, write_camera_yaml
 
@@ -87,6 +87,10 @@ def calibrate(
     cols, rows = parse_board(board)
     b = Board(cols, rows, square_m, kind=pattern.value, marker_m=marker_m, dictionary=dictionary.value)
     kw = {"outlier_factor": float("inf"), "outlier_floor_px": float("inf")} if keep_outliers else {}
-    cal = calibrate_images(images, b, name=name, **kw)
+    progress = StageProgress()  # a bar on a terminal; none under -q
+    try:
+        cal = calibrate_images(images, b, name=name, progress=lambda k, n: progress("finding corners", k, n), **kw)
+    finally:
+        progress.close()
     write_camera_yaml(out, cal)
     _table(cal, out)
