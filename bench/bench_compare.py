@@ -23,8 +23,10 @@ def measure(old: Path, new: Path, truth_changes: list[dict] | None = None) -> di
 
     c = compare_runs(old, new)
     changes = [ch for ch in c.changes if ch.status != "unchanged"]
-    rel = [abs(ch.area_new_m2 - ch.area_old_m2) / max(ch.area_old_m2, ch.area_new_m2) for ch in c.changes if ch.status == "unchanged"]
-    dabs = [abs(ch.area_new_m2 - ch.area_old_m2) for ch in c.changes if ch.status == "unchanged"]
+    same = [(ch.prob_area_old_m2, ch.prob_area_new_m2) if ch.prob_area_old_m2 is not None else (ch.area_old_m2, ch.area_new_m2)
+            for ch in c.changes if ch.status == "unchanged"]  # the areas the grown/shrunk test uses
+    rel = [abs(b - a) / max(a, b, 1e-12) for a, b in same]
+    dabs = [abs(b - a) for a, b in same]
     out = {"registration": c.registration, "counts": {s: sum(ch.status == s for ch in c.changes) for s in ("new", "grown", "shrunk", "gone", "unchanged")},
            "below_noise": len(c.below_noise), "noise_rel_max": max(rel, default=0.0), "noise_abs_max_m2": max(dabs, default=0.0),
            "changes": [(ch.status, ch.cls, [round(x, 3) for x in ch.centroid_wall_m], round(ch.area_old_m2 * 1e4, 1), round(ch.area_new_m2 * 1e4, 1)) for ch in changes]}
@@ -70,7 +72,7 @@ def section(same: dict, changed: dict, seconds: float) -> str:
              "Demo wall (seed 5), flights with seeds 11 and 12; the edited wall (3 corrosion patches appeared, 2 grew 1.4x "
              "linear) flown with seed 12 and compared with flight 11.\n",
              "| pair | registration (inliers, shift) | new / grown / shrunk / gone / unchanged | below noise | false changes | "
-             "largest unchanged area difference |",
+             "largest weighted-area difference called unchanged |",
              "|---|---|---|---:|---:|---|"]
     for name, r in (("same wall, two flights", same), ("edited wall", changed)):
         c = r["counts"]

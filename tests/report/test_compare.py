@@ -74,6 +74,9 @@ def test_new_and_grown_defects_are_found_and_the_rest_is_unchanged(surveys, tmp_
     assert new_["old_id"] is None and new_["area_new_m2"] == pytest.approx(900 * 0.005**2, rel=0.05)
     assert grown["area_old_m2"] == pytest.approx(800 * 0.005**2, rel=0.05) and grown["area_new_m2"] == pytest.approx(56 * 34 * 0.005**2, rel=0.05)
     assert grown["old_id"] and grown["new_id"] and same["old_id"] and same["new_id"]
+    # grown/shrunk is judged on the probability-weighted area over the place, which the fixture's
+    # 0.94 inside / 0.04 outside maps make close to the mask areas
+    assert grown["prob_area_new_m2"] > 2 * grown["prob_area_old_m2"] and abs(same["prob_area_new_m2"] - same["prob_area_old_m2"]) < 1e-4
     # the 1.2 cm / 0.8 cm odometry offset of the second survey is taken out by the image refinement
     reg = doc["registration"]
     assert reg["inliers"] >= 40 and reg["shift_m"] == pytest.approx(np.hypot(0.012, 0.008), abs=0.004)
