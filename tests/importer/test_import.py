@@ -319,3 +319,23 @@ def test_a_tlog_keeps_the_vehicle_and_ignores_another_system(flight, tmp_path):
     mixed.write_bytes(bytes(raw))
     tr, ref = read_flight_log(mixed), read_flight_log(flight / "f.tlog")
     assert len(tr.t_pos) == len(ref.t_pos) and np.abs(tr.pos_ned).max() < 20
+
+
+def test_a_video_s_creation_time_is_read_from_the_container(tmp_path):
+    av = pytest.importorskip("av")
+    path = tmp_path / "clip.mp4"
+    with av.open(str(path), "w") as c:
+        c.metadata["creation_time"] = "2023-11-14T22:13:18Z"  # an MP4 keeps whole seconds
+        s = c.add_stream("mpeg4", rate=10)
+        s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+        for k in range(12):
+            for p in s.encode(av.VideoFrame.from_ndarray(np.full((48, 64, 3), 10 * k, np.uint8), format="rgb24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    fo = open_footage(path)
+    assert fo.time_note.startswith("container creation_time") and len(fo.frames) == 12
+    t = np.array([f.t_camera_s for f in fo.frames])
+    assert t[0] == pytest.approx(1_700_000_000.0 - 2.0) and np.diff(t) == pytest.approx(0.1, abs=1e-3)
+    # --video-start wins over the container's time
+    assert open_footage(path, video_start="2023-11-14T22:13:20.25Z").frames[0].t_camera_s == pytest.approx(1_700_000_000.25)
