@@ -12,6 +12,7 @@ from cli._common import choices, one_line_errors
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight import ExitStatus, FlightLogWriter, load_scenario, run_scenario
 from inspect_pipe.flight_stack import StackParams
+from inspect_pipe.flight_stack.params import load_params
 
 HELP = (
     "Fly a scenario (YAML, inspect_pipe.scenario/1) in the simulated cargo hold and write the "
@@ -38,9 +39,13 @@ def fly(
     autopilot: Annotated[Autopilot, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = Autopilot.px4,
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="mavlink:URL: fly a real autopilot with the scenario's operator script")] = None,
     tlog: Annotated[Optional[Path], typer.Option("--tlog", help="also write the MAVLink telemetry a real autopilot streams (.tlog, as a ground station records it; docs/import.md)")] = None,
+    params: Annotated[Optional[Path], typer.Option("--params", help="stack parameter file {group: {name: value}} over the defaults; each value within its declared bounds (docs/flight.md)")] = None,
 ) -> None:
     """Fly a scenario in the simulated cargo hold and write the flight log."""
     sc = load_scenario(scenario)
+    stack_params = load_params(params) if params is not None else None
+    if params is not None and (mavlink_sim is not None or vehicle is not None):
+        raise InputError("--params", "applies to headless flights only", "drop --params, or fly without --mavlink-sim/--vehicle")
     if tlog is not None and (mavlink_sim is not None or vehicle is not None):
         raise InputError("--tlog", "is written by headless flights only", "on a MAVLink link, record the telemetry with a ground station")
     if mavlink_sim is not None or vehicle is not None:  # real-time MAVLink flights (docs/base_station.md)
@@ -66,14 +71,14 @@ def fly(
         writer = FlightLogWriter(log, sc, tick_hz=StackParams().control.tick_hz)
         with writer:
             if not callbacks:
-                result = run_scenario(sc, on_tick=writer)
+                result = run_scenario(sc, on_tick=writer, params=stack_params)
             else:
                 def on_tick(rec) -> None:
                     writer(rec)
                     for cb in callbacks:
                         cb(rec)
 
-                result = run_scenario(sc, on_tick=on_tick)
+                result = run_scenario(sc, on_tick=on_tick, params=stack_params)
     except OSError as err:
         if tlog_writer is not None:
             tlog_writer.close(keep=False)

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from dataclasses import dataclass, field, fields
 
 
@@ -235,6 +236,54 @@ class StackParams:
 
     def replace(self, **groups) -> "StackParams":
         return dataclasses.replace(self, **groups).validate()
+
+
+def load_params(path: str | Path) -> StackParams:
+    """Stack parameters from a YAML or JSON file ``{group: {name: value}}`` over the defaults
+    (groups: estimation, behaviors, control, flight_machine). A missing or unreadable file, an
+    unknown group or name, a value that is not a number, or one outside its declared bounds is an
+    :class:`InputError` naming the file and the field (one line, exit 2 on the CLI)."""
+    import yaml
+
+    from inspect_pipe.errors import InputError
+
+    src = str(path)
+    try:
+        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(src, "parameter file not found", "give the path of a YAML or JSON parameter file") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise InputError(src, f"not a readable YAML/JSON file ({type(err).__name__})", "a mapping {group: {name: value}}") from None
+    doc = {} if doc is None else doc
+    if not isinstance(doc, dict):
+        raise InputError(src, f"is {type(doc).__name__}", "a mapping {group: {name: value}}")
+    defaults = StackParams()
+    groups = {f.name: getattr(defaults, f.name) for f in fields(defaults)}
+    new = {}
+    for gname, values in doc.items():
+        if gname not in groups:
+            raise InputError(src, f"field '{gname}': unknown group", "one of " + ", ".join(groups))
+        if not isinstance(values, dict):
+            raise InputError(src, f"field '{gname}': is {type(values).__name__}", "a mapping {name: value}")
+        group = groups[gname]
+        known = {f.name: f for f in fields(group)}
+        changes = {}
+        for name, value in values.items():
+            f = known.get(name)
+            if f is None:
+                raise InputError(src, f"field '{gname}.{name}': unknown parameter", f"one of the {gname} parameters (docs/flight.md)")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
+                raise InputError(src, f"field '{gname}.{name}': is {value!r}", "a number")
+            m = f.metadata
+            if "min" in m and not (m["min"] <= value <= m["max"]):
+                raise InputError(src, f"field '{gname}.{name}': {value} outside [{m['min']}, {m['max']}] {m['unit']}", "a value within its bounds")
+            if isinstance(getattr(group, name), int) and not isinstance(getattr(group, name), bool):
+                if value != int(value):
+                    raise InputError(src, f"field '{gname}.{name}': {value} is not an integer", "an integer")
+                value = int(value)
+            changes[name] = value
+        new[gname] = dataclasses.replace(group, **changes)
+    return defaults.replace(**new)
 
 
 def describe(params: StackParams | None = None) -> list[tuple[str, float, float, float, str, str]]:
