@@ -4,7 +4,7 @@ plan given on the command line), returns findings."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 __all__ = ["Finding", "sweep_readiness"]
 
@@ -61,14 +61,8 @@ def sweep_readiness(sweep, plan=None) -> list[Finding]:
             out.append(Finding("take-off tie", False, "the plan has no takeoff point or heading",
                                "the flight's take-off frame is taken as the hold frame: positions along the wall are "
                                "off by wherever the vehicle took off; add takeoff: {position_m, heading_deg} to the plan"))
-    note = meta.wall_frame_note() if hasattr(meta, "wall_frame_note") else None
-    if note is None and plan is not None and not sim:
-        from inspect_pipe.ship import plan_wall_frame
-
-        try:
-            plan_wall_frame(plan)
-        except ValueError as err:
-            note = str(err)
+    # the wall frame as the given plan (not only the one stored in the sweep) makes it
+    note = replace(meta, survey_plan=plan).wall_frame_note()
     if note:
         out.append(Finding("hold dimensions", False, note, "add the hold's length_m / width_m to the survey plan's hold"))
     ta = meta.raw.get("time_alignment") if isinstance(meta.raw, dict) else None

@@ -67,3 +67,14 @@ def test_doctor_refuses_a_nonsense_plan_in_one_line(tmp_path):
     assert r.exit_code == 2
     assert f"{plan}: field 'hold.frame_spacing_m': -0.7" in r.output
     assert "Traceback" not in r.output
+
+
+def test_a_plan_given_on_the_command_line_supplies_the_hold_dimensions(tmp_path):
+    # the sweep stores no plan; the --survey plan has length and width: nothing is missing about the hold
+    sweep = _sweep(tmp_path / "s", with_state=True)
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(PLAN.replace("frame_spacing_m: 0.7}", "frame_spacing_m: 0.7, length_m: 20, width_m: 24}")
+                    + "takeoff: {position_m: [19, 0, 0], heading_deg: 0}\n")
+    r = CliRunner().invoke(app, ["doctor", "--sweep", str(sweep), "--survey", str(plan)])
+    assert r.exit_code == 0, r.output
+    assert "hold dimensions" not in r.output and "take-off tie" not in r.output
