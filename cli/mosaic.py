@@ -32,14 +32,15 @@ Examples:
 
   inspect-pipe mosaic ../shared/data/mosaic/synth_rust_sweep/frames -o out/rust
 
-  inspect-pipe mosaic frames/ -o out/m --focal-px 618   # known focal length: metric rectification
+  inspect-pipe mosaic frames/ -o out/m --focal-px 618   # known focal length (else self-calibrated)
 
   inspect-pipe mosaic frames/ -o out/m --camera camera.yaml   # calibrated camera: undistorted, rectified
 
   inspect-pipe mosaic out/demo/sweep -o out/demo/mosaic   # a sweep: metric, placed on the wall
 
 Exit 0 on success; 2 on bad input (empty folder, unreadable or truncated images, images of
-different sizes, no overlap), after writing whatever could be mosaicked. A sweep is read as
+different sizes, no overlap, a --focal-px the images contradict: then the self-calibrated one is
+used), after writing whatever could be mosaicked. A sweep is read as
 `run` reads it: a last frames.jsonl line cut by a crash, a COMPLETE marker that lists more frames
 than the disk holds, and frames that cannot be read (or, with --verify, whose sha256 differs
 from COMPLETE's) give one warning line; those frames are listed as unplaced with the reason in
@@ -54,7 +55,7 @@ def mosaic(
     input: Path = typer.Argument(..., help="Sweep directory or folder of images (sorted by name)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory (created)."),
     detector: Detector = typer.Option("sift", help="Feature detector."),
-    focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known: rectifies the mosaic to the wall plane."),
+    focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known. Without it, the focal length (and radial distortion k1, k2) is self-calibrated from the images; mosaic.json records what was found."),
     seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
     verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
     camera: Path = typer.Option(None, "--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): K and distortion, over a sweep's own."),

@@ -269,25 +269,28 @@ def _correspondences(edges: list[PairMatch], k: int, rng: np.random.Generator) -
     return Correspondences(np.concatenate(fi), np.concatenate(fj), np.concatenate(P).astype(float), np.concatenate(Q).astype(float))
 
 
-def register(
-    source: FrameSource,
-    *,
-    params: RegisterParams = RegisterParams(),
-    progress: Progress | None = None,
-) -> Registration:
-    """Place every frame it can; the rest go to ``unplaced`` with a reason. Never raises on bad frames."""
-    rng = np.random.default_rng(params.seed)
+@dataclass
+class _Extracted:
+    """What the features step gives: features of the usable frames, the rest with a reason."""
+
+    size_wh: tuple[int, int] | None
+    feats: dict[int, Features]
+    unplaced: dict[int, str]
+    vignetting: Vignetting | None
+
+
+def extract_features(source: FrameSource, prior, params: RegisterParams, workers: int, progress: Progress | None) -> _Extracted:
+    """Load every frame once and detect its features (threads: OpenCV releases the GIL); frames
+    off the survey, unreadable or of another size get a reason. When >= ``low_texture_share`` of
+    the frames are texture-poor, every frame is detected again on equalised images with a
+    sensitive detector: mixing the two preprocessings frame by frame breaks matching at the boundary."""
     n = len(source)
     feats: dict[int, Features] = {}
     unplaced: dict[int, str] = {}
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
 
-    mode = "normal"
-    prior = source if hasattr(source, "centre_px") and hasattr(source, "skip_reason") else None
-
-    def extract(i: int):
-        """Load one frame and detect its features (runs in a worker thread; OpenCV releases the GIL)."""
+    def extract(i: int, mode: str):
         why = prior.skip_reason(i) if prior is not None else ""
         if why:
             return i, why, None, None
@@ -299,10 +302,8 @@ def register(
         small = cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA)
         return i, "", (img.shape[1], img.shape[0]), (small, detect_features(gray, detector=params.detector, max_features=params.max_features, mode=mode))
 
-    workers = params.workers or min(os.cpu_count() or 1, 4)
-    mode = "normal"
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for i, err, wh, out in pool.map(extract, range(n)):
+        for i, err, wh, out in pool.map(lambda i: extract(i, "normal"), range(n)):
             if progress:
                 progress("features", i + 1, n)
             if err:
@@ -317,105 +318,108 @@ def register(
             feats[i] = out[1]
     poor = [i for i, f in feats.items() if len(f) < params.low_texture_features]
     if params.low_texture_share < 1 and len(poor) >= max(2, params.low_texture_share * len(feats)):
-        # Many texture-poor frames: detect every frame on equalised images with a sensitive
-        # detector. Mixing the two preprocessings frame by frame breaks matching at the boundary.
-        mode = "low_texture"
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            for i, err, wh, out in pool.map(extract, sorted(feats)):
+            for i, err, wh, out in pool.map(lambda i: extract(i, "low_texture"), sorted(feats)):
                 if progress:
                     progress("features (low texture)", i + 1, n)
                 feats[i] = out[1]
-    if size_wh is None:
-        return Registration((0, 0), [], unplaced, [], [], None)
-    valid = sorted(feats)
+    return _Extracted(size_wh, feats, unplaced, vig.result() if size_wh else None)
 
-    accepted: list[PairMatch] = []
-    failures: list[PairFailure] = []
-    tried: set[tuple[int, int]] = set()
 
-    def one_pair(pair: tuple[int, int], priors: dict[tuple[int, int], np.ndarray]):
+@dataclass
+class _Pairs:
+    """Pair registration with its bookkeeping: accepted pairs, failures, pairs tried."""
+
+    feats: dict[int, Features]
+    size_wh: tuple[int, int]
+    prior: object
+    params: RegisterParams
+    workers: int
+    progress: Progress | None
+    accepted: list[PairMatch] = field(default_factory=list)
+    failures: list[PairFailure] = field(default_factory=list)
+    tried: set[tuple[int, int]] = field(default_factory=set)
+
+    def one(self, pair: tuple[int, int], priors: dict[tuple[int, int], np.ndarray]) -> PairMatch | PairFailure:
         i, j = pair
-        pair_rng = np.random.default_rng([params.seed, i, j])  # same result whatever the thread order
-        res = match_pair(i, j, feats[i], feats[j], size_wh, params=params.match, prior_H=priors.get((i, j)), rng=pair_rng)
-        if res and prior is not None:
-            why = _disagrees_with_motion(res, prior, size_wh)
+        rng = np.random.default_rng([self.params.seed, i, j])  # same result whatever the thread order
+        res = match_pair(i, j, self.feats[i], self.feats[j], self.size_wh, params=self.params.match, prior_H=priors.get((i, j)), rng=rng)
+        if res and self.prior is not None:
+            why = _disagrees_with_motion(res, self.prior, self.size_wh)
             if why:
                 return PairFailure(i, j, why, res.n_matches)
         return res
 
-    def try_pairs(pairs: list[tuple[int, int]], priors: dict[tuple[int, int], np.ndarray]) -> None:
-        tried.update(pairs)
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for k, res in enumerate(pool.map(lambda p: one_pair(p, priors), pairs)):
-                if progress:
-                    progress("matching", k + 1, len(pairs))
-                (accepted if res else failures).append(res)
+    def attempt(self, pairs: list[tuple[int, int]], priors: dict[tuple[int, int], np.ndarray] | None = None) -> int:
+        """Register ``pairs`` (in threads); returns how many were accepted."""
+        priors = priors or {}
+        self.tried.update(pairs)
+        before = len(self.accepted)
+        with ThreadPoolExecutor(max_workers=self.workers) as pool:
+            for k, res in enumerate(pool.map(lambda p: self.one(p, priors), pairs)):
+                if self.progress:
+                    self.progress("matching", k + 1, len(pairs))
+                (self.accepted if res else self.failures).append(res)
+        return len(self.accepted) - before
 
-    temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
-    try_pairs(temporal, {})
 
-    # A slow vehicle at 10 Hz gives frames a few pixels apart: align and blend keyframes only,
-    # and attach the frames between them through their chain of neighbour homographies.
-    all_valid = valid
-    keys, attach, key_priors = _select_keyframes(valid, accepted, size_wh, params.keyframe_step)
-    chain_pairs: list[PairMatch] = []
-    if attach:
-        keyset = set(keys)
-        chain_pairs = [e for e in accepted if not (e.i in keyset and e.j in keyset)]
-        accepted[:] = [e for e in accepted if e.i in keyset and e.j in keyset]
-        valid = keys
-        key_temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
-        try_pairs([p for p in key_temporal if p not in tried], key_priors)
+def layout_rounds(frames: list[int], pairs: _Pairs, params: RegisterParams, rng: np.random.Generator) -> None:
+    """Pass-to-pass candidates from the current layout of each group (chained pair homographies,
+    from the second round a quick pose fit), ranked by predicted overlap, matched with the
+    layout's prediction as a guide."""
+    size_wh = pairs.size_wh
+    for round_ in range(params.layout_rounds):
+        new: list[tuple[int, int]] = []
+        priors = {}
+        for comp in _components(frames, pairs.accepted):
+            if len(comp) < 2:
+                continue
+            H = _initial_layout(comp, pairs.accepted)
+            if round_ > 0 and len(comp) >= 3:
+                comp_edges = [e for e in pairs.accepted if e.i in H]
+                H = quick_layout(H, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
+                                 focal_px=params.focal_px, pair_H={(e.i, e.j): e.H for e in comp_edges}, params=params.align)
+            linked = short_links([(e.i, e.j) for e in pairs.accepted if e.i in H])
+            for i, j, _ov in layout_pairs(H, size_wh, tried=pairs.tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
+                new.append((i, j))
+                priors[(i, j)] = np.linalg.inv(H[j]) @ H[i]
+        if not new:
+            break
+        pairs.attempt(new, priors)
 
-    def layout_rounds() -> None:
-        for _round in range(params.layout_rounds):
-            new: list[tuple[int, int]] = []
-            priors = {}
-            for comp in _components(valid, accepted):
-                if len(comp) < 2:
-                    continue
-                H = _initial_layout(comp, accepted)
-                if _round > 0 and len(comp) >= 3:
-                    comp_edges = [e for e in accepted if e.i in H]
-                    H = quick_layout(H, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
-                                     focal_px=params.focal_px, params=params.align)
-                linked = short_links([(e.i, e.j) for e in accepted if e.i in H])
-                for i, j, _ov in layout_pairs(H, size_wh, tried=tried, linked=linked, min_overlap=params.min_overlap, per_frame=params.candidates_per_frame):
-                    new.append((i, j))
-                    priors[(i, j)] = np.linalg.inv(H[j]) @ H[i]
-            if not new:
-                break
-            try_pairs(new, priors)
 
-    layout_rounds()
+def bridge_groups(frames: list[int], pairs: _Pairs, params: RegisterParams, rng: np.random.Generator) -> None:
+    """Join disconnected groups: pairs the odometry proposes, else unguided keyframe pairs, within
+    ``bridge_budget``; each success is followed by layout rounds."""
     budget = params.bridge_budget
     while budget > 0:
-        comps = [c for c in _components(valid, accepted) if len(c) >= 2]
+        comps = [c for c in _components(frames, pairs.accepted) if len(c) >= 2]
         if len(comps) < 2:
             break
-        pairs = _odometry_candidates(comps, prior, size_wh, tried) if prior is not None else []
-        pairs = pairs or _bridge_candidates(comps, feats, tried, budget)
-        if not pairs:
+        cand = _odometry_candidates(comps, pairs.prior, pairs.size_wh, pairs.tried) if pairs.prior is not None else []
+        cand = cand or _bridge_candidates(comps, pairs.feats, pairs.tried, budget)
+        if not cand:
             break
-        budget -= len(pairs)
-        before = len(accepted)
-        try_pairs(pairs, {})
-        if len(accepted) == before:
+        budget -= len(cand)
+        if not pairs.attempt(cand):
             break
-        layout_rounds()
+        layout_rounds(frames, pairs, params, rng)
 
+
+def align_groups(frames: list[int], edges: list[PairMatch], failures: list[PairFailure], size_wh: tuple[int, int],
+                 params: RegisterParams, rng: np.random.Generator) -> tuple[list[Group], list[PairMatch]]:
+    """Global alignment of each connected group (:func:`align_group`); pairs inconsistent with it
+    by > ``pair_outlier_px`` RMS are dropped (added to ``failures``) and the groups aligned again."""
     groups: list[Group] = []
-    edges = list(accepted)
     for _attempt in range(3):
         groups = []
         dropped = False
-        for comp in _components(valid, edges):
+        for comp in _components(frames, edges):
             if len(comp) < 2:
                 continue
-            H0 = _initial_layout(comp, edges)
             comp_set = set(comp)
             comp_edges = [e for e in edges if e.i in comp_set]
-            res = align_group(H0, _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
+            res = align_group(_initial_layout(comp, edges), _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
                               focal_px=params.focal_px, principal_px=params.principal_px,
                               pair_H={(e.i, e.j): e.H for e in comp_edges}, params=params.align)
             bad = {key for key, r in res.per_pair_rms_px.items() if r > params.pair_outlier_px}
@@ -428,7 +432,11 @@ def register(
             groups.append(Group(sorted(comp), res.H, res.rms_px, model=res.model, camera=res.camera, note=res.note))
         if not dropped:
             break
+    return groups, edges
 
+
+def attach_frames(groups: list[Group], attach: dict[int, tuple[int, np.ndarray]]) -> None:
+    """Frames thinned out as near-duplicates join their keyframe's group through their chain."""
     for g in groups:
         extra = [f for f, (k, _) in attach.items() if k in g.H]
         for f in extra:
@@ -437,24 +445,70 @@ def register(
             g.H[f] = h / h[2, 2]
         g.keyframes = sorted(g.frames)
         g.frames = sorted(g.frames + extra)
-    valid = all_valid
-    edges = edges + chain_pairs
 
+
+def unplaced_reasons(frames: list[int], groups: list[Group], failures: list[PairFailure], feats: dict[int, Features],
+                     params: RegisterParams) -> dict[int, str]:
+    """Why each frame that is in no group stayed out: too little texture, its pairs' most common failure, or no overlap."""
     placed = {f for g in groups for f in g.frames}
     reasons: dict[int, list[str]] = defaultdict(list)
     for fl in failures:
         reasons[fl.i].append(fl.reason)
         reasons[fl.j].append(fl.reason)
-    for f in valid:
-        if f not in placed:
-            why = reasons.get(f)
-            if len(feats[f]) < params.match.min_inliers:
-                unplaced[f] = f"too few features ({len(feats[f])}): texture too poor to register"
-            elif why:
-                unplaced[f] = "no overlapping frame could be registered: " + max(set(why), key=why.count)
-            else:
-                unplaced[f] = "no overlapping frame"
+    out = {}
+    for f in frames:
+        if f in placed:
+            continue
+        why = reasons.get(f)
+        if len(feats[f]) < params.match.min_inliers:
+            out[f] = f"too few features ({len(feats[f])}): texture too poor to register"
+        elif why:
+            out[f] = "no overlapping frame could be registered: " + max(set(why), key=why.count)
+        else:
+            out[f] = "no overlapping frame"
+    return out
+
+
+def register(
+    source: FrameSource,
+    *,
+    params: RegisterParams = RegisterParams(),
+    progress: Progress | None = None,
+) -> Registration:
+    """Place every frame it can; the rest go to ``unplaced`` with a reason. Never raises on bad frames.
+
+    Steps: :func:`extract_features`; temporal neighbour pairs; keyframes (:func:`_select_keyframes`);
+    :func:`layout_rounds`; :func:`bridge_groups`; :func:`align_groups`; :func:`attach_frames`;
+    :func:`unplaced_reasons`."""
+    rng = np.random.default_rng(params.seed)
+    prior = source if hasattr(source, "centre_px") and hasattr(source, "skip_reason") else None
+    workers = params.workers or min(os.cpu_count() or 1, 4)
+    ex = extract_features(source, prior, params, workers, progress)
+    if ex.size_wh is None:
+        return Registration((0, 0), [], ex.unplaced, [], [], None)
+    all_valid = valid = sorted(ex.feats)
+    pairs = _Pairs(ex.feats, ex.size_wh, prior, params, workers, progress)
+    pairs.attempt([(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)])
+
+    # A slow vehicle at 10 Hz gives frames a few pixels apart: align and blend keyframes only,
+    # and attach the frames between them through their chain of neighbour homographies.
+    keys, attach, key_priors = _select_keyframes(valid, pairs.accepted, ex.size_wh, params.keyframe_step)
+    chain_pairs: list[PairMatch] = []
+    if attach:
+        keyset = set(keys)
+        chain_pairs = [e for e in pairs.accepted if not (e.i in keyset and e.j in keyset)]
+        pairs.accepted[:] = [e for e in pairs.accepted if e.i in keyset and e.j in keyset]
+        valid = keys
+        key_temporal = [(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)]
+        pairs.attempt([p for p in key_temporal if p not in pairs.tried], key_priors)
+
+    layout_rounds(valid, pairs, params, rng)
+    bridge_groups(valid, pairs, params, rng)
+    groups, edges = align_groups(valid, list(pairs.accepted), pairs.failures, ex.size_wh, params, rng)
+    attach_frames(groups, attach)
+    unplaced = {**ex.unplaced, **unplaced_reasons(all_valid, groups, pairs.failures, ex.feats, params)}
     groups.sort(key=lambda g: (-len(g.frames), g.frames[0]))
     return Registration(
-        size_wh, groups, dict(sorted(unplaced.items())), edges, failures, vig.result(), {f: len(feats[f]) for f in valid}
+        ex.size_wh, groups, dict(sorted(unplaced.items())), edges + chain_pairs, pairs.failures, ex.vignetting,
+        {f: len(ex.feats[f]) for f in all_valid},
     )
