@@ -194,6 +194,11 @@ class ControlParams:
     accel_observer_xy_limit_m_s2: float = param(
         1.5, 0.0, 10.0, "m/s^2", "horizontal disturbance observers: largest wind force it makes up (0: off)"
     )
+    accel_observer_xy_band_m_s2: float = param(
+        0.1, 0.0, 2.0, "m/s^2", "horizontal disturbance observers: what the attitude estimate's transient can show "
+        "(g x 0.6 deg: 5 % of a/g at 2 m/s^2) is left to the integrators; only the excess is a disturbance "
+        "(tried on the paper scenarios: 0.17 drifted Fig. 5 mode 3 by 0.251 m, 0.1: 0.240 m, sweep 0.199/0.206 m/s)"
+    )
     accel_observer_lag_s: float = param(
         0.06, 0.0, 1.0, "s", "disturbance observers: attitude and motor lag between set-point and acceleration"
     )

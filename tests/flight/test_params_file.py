@@ -87,3 +87,12 @@ def test_steady_one_metre_per_second_is_tracked_within_five_percent():
     steady = [t.vel_true[0] for t in ticks if 14.0 <= t.t <= 20.0]
     # THEN the true speed is the command within 5 % (it ran 5-10 % low with the leaking integrators)
     assert statistics.fmean(steady) == pytest.approx(1.0, rel=0.05)
+
+
+def test_inspection_mode_sweeps_laterally_at_the_paper_speed_within_a_hundredth(fly):
+    # GIVEN the Fig. 7 sweep (inspection mode, 0.2 m/s whatever the stick's amplitude)
+    f = fly("fig7_inspection_sweep")
+    # THEN the lateral passes fly 0.20 +- 0.01 m/s (0.188 / 0.190 before the observers' band)
+    for t0, t1 in ((10.0, 15.5), (33.0, 35.5)):
+        v = statistics.fmean(r.vel_true[1] for r in f.between(t0, t1))
+        assert v == pytest.approx(-0.2, abs=0.01), (t0, t1)
