@@ -10,10 +10,19 @@ class InputError(Exception):
     """
 
     def __init__(self, where: str, problem: str, hint: str = "") -> None:
-        self.where = str(where)
-        self.problem = problem
-        self.hint = hint
+        # a file's own text echoed in the message (a key, a value) must not break the one line
+        self.where = _one_line(str(where))
+        self.problem = _one_line(str(problem))
+        self.hint = _one_line(str(hint))
+        where, problem, hint = self.where, self.problem, self.hint
         msg = f"{self.where}: {problem}"
         if hint:
             msg += f" ({hint})"
         super().__init__(msg)
+
+
+def _one_line(text: str) -> str:
+    """``text`` with newlines and other control characters written as escapes (\\n, \\x1b)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)

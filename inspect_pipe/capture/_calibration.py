@@ -391,6 +391,48 @@ def _camera(where: str, K, dist, w, h, name: str, rms) -> CameraModel:
     return CameraModel(K, d, int(w), int(h), name or "camera", calibration=calib)
 
 
+_READ_HINT = "a camera.yaml written by `inspect-pipe calibrate` or OpenCV"
+
+
+def _load_opencv_yaml(path: Path, text: str) -> CameraModel:
+    """OpenCV FileStorage YAML (``%YAML:1.0``, ``!!opencv-matrix`` nodes) read with PyYAML: OpenCV's
+    own reader can abort the process on a damaged matrix node (a missing ``cols``), where this
+    gives one line."""
+    import yaml
+
+    where = str(path)
+
+    class _Loader(yaml.SafeLoader):
+        pass
+
+    _Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", lambda loader, node: dict(loader.construct_mapping(node, deep=True)))
+    body = re.sub(r"\A\s*%YAML:1\.0", "%YAML 1.1", text, count=1)
+    try:
+        doc = yaml.load(body, Loader=_Loader)  # noqa: S506 - a SafeLoader with one more mapping tag
+    except (yaml.YAMLError, ValueError, TypeError):
+        raise InputError(where, "not a readable OpenCV FileStorage file", _READ_HINT) from None
+    if not isinstance(doc, dict):
+        raise InputError(where, "not a readable OpenCV FileStorage file", _READ_HINT)
+    for key in ("camera_matrix", "distortion_coefficients", "image_width", "image_height"):
+        if doc.get(key) is None:
+            raise InputError(where, f"'{key}' missing", "an OpenCV calibration file has camera_matrix, distortion_coefficients, image_width, image_height")
+
+    def mat(key: str):
+        m = doc[key]
+        if not isinstance(m, dict) or not isinstance(m.get("data"), list):
+            raise InputError(where, "'camera_matrix' or 'distortion_coefficients' is not an opencv-matrix")
+        rows, cols = m.get("rows"), m.get("cols")
+        if not (isinstance(rows, int) and isinstance(cols, int) and rows > 0 and cols > 0 and rows * cols == len(m["data"])):
+            raise InputError(where, f"'{key}': rows x cols is not the number of values in data")
+        return m["data"]
+
+    K, dist = mat("camera_matrix"), mat("distortion_coefficients")
+    name = doc.get("camera_name")
+    rms = doc.get("avg_reprojection_error")
+    return _camera(where, K, dist, doc["image_width"], doc["image_height"], name if isinstance(name, str) and name else path.stem,
+                   rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None)
+
+
 def _load_opencv(path: Path) -> CameraModel:
     where = str(path)
     try:
@@ -467,8 +509,10 @@ def load_camera(path: str | Path) -> CameraModel:
     except UnicodeDecodeError:
         raise InputError(str(path), "not a text file", "give a camera.yaml from `inspect-pipe calibrate`") from None
     head = text.lstrip()[:64]
-    if head.startswith(("%YAML:", "<?xml", "{")) or "!!opencv-matrix" in text:
-        return _load_opencv(path)
+    if head.startswith("%YAML:") or (not head.startswith(("<?xml", "{")) and "!!opencv-matrix" in text):
+        return _load_opencv_yaml(path, text)
+    if head.startswith(("<?xml", "{")):
+        return _load_opencv(path)  # FileStorage XML or JSON: OpenCV's reader
     return _load_ros(path, text)
 
 

@@ -14,6 +14,7 @@ to do (``--engine saliency`` needs neither onnxruntime nor the network file).
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -179,6 +180,15 @@ def default_path(engine: str) -> Path:
     return {"saliency": default_model_path, "onnx": default_onnx_path, "fused": default_fused_path}[engine]()
 
 
+@contextlib.contextmanager
+def _quiet():
+    """stdout and stderr silenced, Python's and the C++ runtime's (file descriptors 1 and 2)."""
+    from inspect_pipe.importer._logs import _silenced
+
+    with _silenced():
+        yield
+
+
 def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 1) -> DetectorEngine:
     """Load ``engine`` with its model file ``model`` (default: the shipped one; for ``fused`` the
     parameter .json, with the shipped saliency and onnx models). ``threads``: onnxruntime
@@ -202,13 +212,19 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
         from ._onnx_detect import MULTIPLE_OF, load_onnx_model
 
         try:
-            return _Onnx(engine, path, load_onnx_model(path, threads=threads), tile_multiple=MULTIPLE_OF, batch=4)
+            # onnxruntime prints a banner ("EP Error ...") to stdout and its C++ log lines to
+            # stderr when a file is damaged: the user sees the one line below instead
+            with _quiet():
+                model_ = load_onnx_model(path, threads=threads)
+            return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
         except ValueError as err:
             raise InputError(path, str(err), "use --engine saliency, or train one with "
                              "'inspect-pipe detect train --engine onnx'") from None
     from ._fused import load_fused_model
 
     try:
-        return _Fused(engine, path, load_fused_model(path, threads=threads), tile_multiple=64, batch=1)
+        with _quiet():  # onnxruntime's banner and log lines, as above
+            model_ = load_fused_model(path, threads=threads)
+        return _Fused(engine, path, model_, tile_multiple=64, batch=1)
     except ValueError as err:
         raise InputError(path, str(err), "use --engine saliency or --engine onnx") from None

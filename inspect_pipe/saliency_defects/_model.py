@@ -20,6 +20,8 @@ role percolation plays in the crack detectors of Bonnin-Pascual and Ortiz).
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -368,8 +370,18 @@ def load_model(path: Path) -> DefectModel:
         with np.load(Path(path), allow_pickle=False) as z:
             header = json.loads(bytes(z["meta"]).decode())
             arrays = {k: z[k] for k in z.files if k != "meta"}
-    except (OSError, KeyError, ValueError, json.JSONDecodeError) as err:
-        raise ValueError(f"not a defect model file ({err.__class__.__name__}: {err})") from None
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError) as err:
+        # a truncated or bit-flipped .npz fails its zip structure, its CRC or its deflate stream
+        raise ValueError(f"not a defect model file ({err.__class__.__name__}: {str(err)[:120]})") from None
+    if not isinstance(header, dict):
+        raise ValueError("not a defect model file (its header is not a JSON object)")
+    try:
+        return _from_header(header, arrays)
+    except (KeyError, TypeError, AttributeError, IndexError) as err:  # a ValueError says its own reason
+        raise ValueError(f"damaged model file ({err.__class__.__name__} in its header or arrays)") from None
+
+
+def _from_header(header: dict, arrays: dict) -> DefectModel:
     if header.get("format") not in READ_FORMATS:
         raise ValueError(f"unsupported model format {header.get('format')!r}, expected {FORMAT}")
     geo = header.get("feature_geometry", {})
