@@ -8,7 +8,8 @@ works on frames reduced to ``work_px`` on their longer side, with ORB features a
 free homography chained frame to frame). Each frame is matched to the last keyframe (a frame
 that moved more than ``keyframe_step`` of the work-frame diagonal from the one before), so a
 hovering vehicle does not accumulate error; when that fails, to the previous placed frame; when
-that fails too and the vehicle's state gives a position, the frame is placed by odometry. A new
+that fails, to the keyframes nearest where the recent motion puts the camera (relocalisation);
+when that fails too and the vehicle's state gives a position, the frame is placed by odometry. A new
 keyframe is also matched to the nearest keyframe of an earlier stretch (the pass before): when
 that succeeds its placement wins, so drift along a pass stops at the next pass.
 
@@ -31,13 +32,14 @@ import numpy as np
 class LiveParams:
     work_px: int = 320  # frames are reduced to this on their longer side
     mosaic_scale: float = 0.25  # mosaic px per full-frame px
-    features: int = 500
+    features: int = 800  # 500 lost track at a 37 %-overlap pass change (500/600 placed), 800: 596/600, 29 ms p95 CPU
     fast_threshold: int = 5  # ORB corner threshold: low, so smooth corroded plate still gives corners
     min_inliers: int = 20
     ransac_px: float = 3.0  # in work-frame pixels
     keyframe_step: float = 0.1  # of the work-frame diagonal
     recent_keys: int = 8  # keyframes this recent are not loop-closure candidates
     loop_radius: float = 0.4  # of the frame diagonal: how near an earlier keyframe must be predicted
+    relocalise_keys: int = 4  # after a failure, this many keyframes nearest the extrapolated position are tried
     scale_range: float = 1.5  # usable if the frame's scale is within this factor of the sweep's median
     min_sharpness: float = 0.5  # usable if Laplacian variance >= this share of the recent frames' upper quartile
     sharp_window: int = 40  # recent frames (seeing similar wall) whose upper quartile the sharpness is judged against
@@ -62,7 +64,7 @@ class Placement:
 
     index: int
     H: np.ndarray | None
-    how: str  # "first", "keyframe", "previous", "loop" (against an earlier pass), "odometry" or "unplaced"
+    how: str  # "first", "keyframe", "previous", "loop" (an earlier pass), "relocalised", "odometry" or "unplaced"
     usable: bool  # counts toward coverage (resolution and sharpness)
     sharpness: float
     ms: float  # wall time spent in add_frame
@@ -143,6 +145,9 @@ class LiveMosaic:
                     H, how = ref.H @ S, name
                     break
             if H is None:
+                H = self._relocalise(cur, index)
+                how = "relocalised" if H is not None else how
+            if H is None:
                 H = self._by_odometry(state)
                 how = "odometry" if H is not None else how
         usable = False
@@ -216,6 +221,23 @@ class LiveMosaic:
     def _centre(self, f: _Frame) -> np.ndarray:
         v = f.H @ np.array([self._work_wh[0] / 2, self._work_wh[1] / 2, 1.0])
         return v[:2] / v[2]
+
+    def _relocalise(self, cur: _Frame, index: int) -> np.ndarray | None:
+        """After a failure: match the keyframes nearest to where the recent motion (last placed
+        frames' velocity, extrapolated over the frames since) puts the camera now."""
+        placed = [p for p in self.placements[-30:] if p.placed]
+        if not self._keys or len(placed) < 2:
+            return None
+        c = np.array([self.frame_wh[0] / 2, self.frame_wh[1] / 2, 1.0])
+        (i0, a), (i1, b) = [(p.index, p.H @ c) for p in placed[-2:]]
+        a, b = a[:2] / a[2], b[:2] / b[2]
+        guess = b + (b - a) / max(i1 - i0, 1) * (index - i1)
+        d = np.array([np.linalg.norm(self._centre(k) - guess) for k in self._keys])
+        for k in np.argsort(d)[: self.params.relocalise_keys]:
+            S = self._match(cur, self._keys[k])
+            if S is not None:
+                return self._keys[k].H @ S
+        return None
 
     def _close_loop(self, cur: _Frame) -> np.ndarray | None:
         """Match a new keyframe to the nearest keyframe of an earlier stretch (not among the last
