@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import functools
 from enum import Enum
 import logging
@@ -25,6 +26,17 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
     return typer.Exit(code)
 
 
+def os_error_line(err: OSError) -> str:
+    """One line for an operating-system error while reading or writing: the path, the problem, what to do."""
+    where = err.filename or "output"
+    what = (err.strerror or err.__class__.__name__).lower()
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{where}: {what} (free space or give -o a folder on another disk, then run again; no file is left half-written)"
+    if err.errno == errno.EROFS:
+        return f"{where}: {what} (give -o a writable folder)"
+    return f"{where}: {what}"
+
+
 def one_line_errors(func: F) -> F:
     """Turn :class:`InputError` (and a few OS errors) into ``error: ...`` on stderr and exit 2."""
 
@@ -38,6 +50,8 @@ def one_line_errors(func: F) -> F:
             raise fail(f"{err.filename}: not found") from None
         except PermissionError as err:
             raise fail(f"{err.filename}: permission denied") from None
+        except OSError as err:  # a full or read-only disk, a failing device: one line, exit 2
+            raise fail(os_error_line(err)) from None
         except KeyboardInterrupt:
             typer.echo("interrupted; everything written so far is kept", err=True)
             sys.exit(130)

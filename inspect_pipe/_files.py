@@ -53,10 +53,13 @@ def atomic_write(path: Path, data: bytes, *, fsync: bool = True) -> None:
         os.close(fd)
         fd = -1
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         if fd >= 0:
             os.close(fd)
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.filename is None and err.errno is not None:
+            # a full disk (ENOSPC) or a failing device surfaces from os.write without a name: name the file
+            raise OSError(err.errno, err.strerror or os.strerror(err.errno), str(path)) from None
         raise
 
 
