@@ -69,27 +69,56 @@ def mix(
     within [0, ``motor_max_n[i]``]. Attitude first: roll and pitch are scaled down only as far as
     no collective fits them in, the collective is the one closest to ``thrust_n`` that does, and
     yaw gets what headroom is left."""
-    rp = (-ty / (2.0 * arm_m), tx / (2.0 * arm_m), ty / (2.0 * arm_m), -tx / (2.0 * arm_m))
-    s = 1.0
-    for i in range(4):
-        for j in range(4):
-            gap = rp[j] - rp[i]
-            if gap > 0.0 and motor_max_n[j] < s * gap:
-                s = motor_max_n[j] / gap  # motor j at its top while motor i is at zero
-    rp = tuple(s * v for v in rp)
-    lo = max(-v for v in rp)
-    hi = min(mx - v for mx, v in zip(motor_max_n, rp))
-    c = max(lo, min(hi, 0.25 * thrust_n))
-    base = [c + v for v in rp]
+    k2 = 2.0 * arm_m
+    r0, r1, r2, r3 = -ty / k2, tx / k2, ty / k2, -tx / k2
+    m0, m1, m2, m3 = motor_max_n
+    if m0 == m1 == m2 == m3:
+        # Equal ranges (the firmware's mixer plans with the nominal one): the spread must fit.
+        lo_v = min(r0, r1, r2, r3)
+        hi_v = max(r0, r1, r2, r3)
+        if hi_v - lo_v > m0:
+            s = m0 / (hi_v - lo_v)
+            r0, r1, r2, r3 = s * r0, s * r1, s * r2, s * r3
+            lo_v, hi_v = min(r0, r1, r2, r3), max(r0, r1, r2, r3)
+        lo, hi = -lo_v, m0 - hi_v
+    else:
+        rp = (r0, r1, r2, r3)
+        s = 1.0
+        for i in range(4):
+            for j in range(4):
+                gap = rp[j] - rp[i]
+                if gap > 0.0 and motor_max_n[j] < s * gap:
+                    s = motor_max_n[j] / gap  # motor j at its top while motor i is at zero
+        r0, r1, r2, r3 = s * r0, s * r1, s * r2, s * r3
+        lo = max(-r0, -r1, -r2, -r3)
+        hi = min(m0 - r0, m1 - r1, m2 - r2, m3 - r3)
+    c = 0.25 * thrust_n
+    c = lo if c < lo else hi if c > hi else c
+    b0, b1, b2, b3 = c + r0, c + r1, c + r2, c + r3
     yw = tz / (4.0 * torque_m)
-    yaw = (yw, -yw, yw, -yw)
     k = 1.0
-    for b, y, mx in zip(base, yaw, motor_max_n):
-        if y > 0.0 and b + k * y > mx:
-            k = max(0.0, (mx - b) / y)
-        elif y < 0.0 and b + k * y < 0.0:
-            k = max(0.0, -b / y)
-    return tuple(max(0.0, min(mx, b + k * y)) for b, y, mx in zip(base, yaw, motor_max_n))  # type: ignore[return-value]
+    if yw > 0.0:  # motors 0 and 2 up, 1 and 3 down
+        for b, mx in ((b0, m0), (b2, m2)):
+            if b + k * yw > mx:
+                k = max(0.0, (mx - b) / yw)
+        for b in (b1, b3):
+            if b - k * yw < 0.0:
+                k = max(0.0, b / yw)
+    elif yw < 0.0:
+        for b in (b0, b2):
+            if b + k * yw < 0.0:
+                k = max(0.0, -b / yw)
+        for b, mx in ((b1, m1), (b3, m3)):
+            if b - k * yw > mx:
+                k = max(0.0, (b - mx) / yw)
+    y = k * yw
+    out0, out1, out2, out3 = b0 + y, b1 - y, b2 + y, b3 - y
+    return (
+        0.0 if out0 < 0.0 else m0 if out0 > m0 else out0,
+        0.0 if out1 < 0.0 else m1 if out1 > m1 else out1,
+        0.0 if out2 < 0.0 else m2 if out2 > m2 else out2,
+        0.0 if out3 < 0.0 else m3 if out3 > m3 else out3,
+    )
 
 
 def build_mjcf(world: World, vehicle: VehicleModel, start: tuple[float, float, float], yaw: float, timestep_s: float) -> str:
@@ -267,7 +296,7 @@ class QuadrotorSim:
         avail = self.thrust_available
         thrust_sp = max(0.0, min(1.0, sp.thrust_frac)) * tmax * avail
         motor_max = [0.25 * tmax * avail] * 4
-        health = self.motor_health
+        h0, h1, h2, h3 = self.motor_health
         arm, km = veh.arm_m, veh.rotor_torque_m
         r_ge = veh.rotor_radius_m / 4.0
         z_rotor = 0.02  # rotor plane above the body origin
@@ -301,9 +330,12 @@ class QuadrotorSim:
             else:
                 yaw_sp = yaw
                 cmd = (0.0, 0.0, 0.0, 0.0)
-            for i in range(4):
-                motors[i] += alpha * (health[i] * cmd[i] - motors[i])  # motor lag
-            m0, m1, m2, m3 = motors
+            # Motor lag, each motor giving its health's share of its command.
+            u0, u1, u2, u3 = cmd
+            m0 = motors[0] = motors[0] + alpha * (h0 * u0 - motors[0])
+            m1 = motors[1] = motors[1] + alpha * (h1 * u1 - motors[1])
+            m2 = motors[2] = motors[2] + alpha * (h2 * u2 - motors[2])
+            m3 = motors[3] = motors[3] + alpha * (h3 * u3 - motors[3])
             # Ground effect (Cheeseman and Bennett): T / T_inf = 1 / (1 - (R / 4z)^2) over the floor,
             # taken no closer than z = R / 2, where the formula stops holding.
             zr = max(qpos[2] + z_rotor, 2.0 * r_ge)
