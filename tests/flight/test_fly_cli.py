@@ -12,7 +12,7 @@ from inspect_pipe.flight import load_scenario, record_to_json, run_scenario
 
 REQUIRED = {
     "t", "pos_true", "vel_true", "est", "est_mode", "fsm", "user_cmd", "cmd", "behaviors",
-    "inspection_mode", "dist_true", "battery_percent", "link_ok", "collided",
+    "inspection_mode", "dist_true", "battery_percent", "link_ok", "collided", "imu", "att_est", "att_true",
 }
 
 
@@ -31,6 +31,9 @@ def test_fly_writes_a_versioned_log_with_every_spec_field(tmp_path, scenarios_di
     assert set(ticks[-1]["dist_true"]) == {"front", "back", "left", "right", "down"}
     assert {t["fsm"] for t in ticks} >= {"landed", "taking_off", "flying"}
     assert ticks[-1]["est_mode"] in (0, 1, 2, 3, -1, -2)
+    # the IMU's specific force (body frame: +g up when level) and both attitudes (issue 19)
+    assert set(ticks[-1]["imu"]) == {"ax", "ay", "az"} and 8.0 < ticks[-1]["imu"]["az"] < 11.5
+    assert set(ticks[-1]["att_est"]) == set(ticks[-1]["att_true"]) == {"roll", "pitch"}
 
 
 def test_flying_backwards_into_the_wall_is_a_collision_exit_1(tmp_path):
