@@ -276,12 +276,12 @@ def train(
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
-    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: phase 1 stops after this many minutes, phase 2 (corrosion fine-tuning) within 3 more.", min=1)] = 85.0,
+    time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
     Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
-    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v1.onnx
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v2.onnx --version 2
     """
     import inspect_pipe.saliency_defects as sd
 
@@ -329,7 +329,7 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> 
     from inspect_pipe.saliency_defects._core import SET_OF_CLASS
     from inspect_pipe.saliency_defects._onnx_train import (
         OnnxTrainConfig,
-        export_onnx,
+        export_model,
     )
     from inspect_pipe.saliency_defects._onnx_train import train as train_net
 
@@ -339,7 +339,7 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> 
     if missing:
         raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
     ckpt = out.with_suffix(".pt")
-    # phase 1 within the budget, both phases (phase 2: corrosion fine-tuning) within 3 more minutes
+    # the cosine schedule ends at max_steps or at the budget, whichever first
     cfg = OnnxTrainConfig(time_budget_s=60 * time_budget_min, total_time_budget_s=60 * (time_budget_min + 3))
     train_net(data, ckpt, cfg, log=typer.echo)
-    export_onnx(ckpt, out, version=version, log=typer.echo)
+    export_model(ckpt, out, data, version=version, log=typer.echo)

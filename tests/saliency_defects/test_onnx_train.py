@@ -277,3 +277,15 @@ def test_effnet_export_round_trip_with_the_severity_output(tmp_path):
     assert states.shape == (96, 128) and (states == ref_states).mean() > 0.99
     # AND without corrosion asked for, no states are computed
     assert od.onnx_maps(img, m, kinds=("crack",))[1] is None
+    # AND the condition-state bias chosen on (tiny) validation items is no worse than none, lies on
+    # the grid, and its confusion matrix counts every pixel once
+    items = _tiny_items(4)["corrosion"]
+    for k, it in enumerate(items):
+        it.states = it.gt.astype(np.uint8) * (1 + k % 3)
+    r = ot.fit_severity_bias(out, items, threshold_u8=1, min_area_px=1)
+    assert r["mean_F1"] >= r["unbiased_mean_F1"]
+    assert r["logit_bias"][0] == 0 and all(b in ot.SEVERITY_BIAS_GRID for b in r["logit_bias"][1:])
+    assert np.asarray(r["confusion"]).sum() == sum(it.gt.size for it in items)
+    # AND the inference applies a stored bias: a large severe offset makes every state 'severe'
+    biased = dataclasses.replace(m, severity_bias=(0.0, 0.0, 1e6))
+    assert (od.onnx_maps(img, biased)[1] == 3).all()
