@@ -55,9 +55,10 @@ app = typer.Typer(
 
 Engine = Enum("Engine", {e: e for e in ENGINES}, type=str)
 DEFAULT = Engine(DEFAULT_ENGINE)  # of detect, run and demo
-ENGINE_HELP = ("onnx: the learned network on onnxruntime (best on every benchmark set); saliency: Bayes on "
-               "saliency features, the paper's explainable method, needs no onnxruntime; fused: a per-class "
-               "weighted mean of both.")
+ENGINE_HELP = ("onnx: the learned network on onnxruntime (the default, chosen on validation images; also gives "
+               "corrosion condition states); saliency: Bayes on saliency features, the paper's explainable method, "
+               "needs no onnxruntime, no condition states; fused: a per-class weighted mean of both (about twice "
+               "the time).")
 
 
 class Kind(str, Enum):
