@@ -18,6 +18,7 @@ from typer.core import TyperGroup
 
 from cli._common import StageProgress, one_line_errors
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._core import TILE_PX
 from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
@@ -241,7 +242,7 @@ def run(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one): .onnx (onnx), .npz (saliency) or .json (fused: its parameters).")] = None,
-    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = 768,
+    tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = TILE_PX,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
     """Write OUT/NAME.prob.png (0..255 = P(defect)), OUT/NAME.mask.png (0/255) and OUT/defects.json;
