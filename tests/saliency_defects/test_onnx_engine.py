@@ -231,7 +231,8 @@ def _bad_models(tmp_path) -> dict[str, Path]:
     # same-length byte edits of the metadata JSON (no onnx package needed)
     for name, old, new in (("format", b'"inspect_pipe.defect_onnx/1"', b'"inspect_pipe.defect_onnx/9"'),
                            ("channels", b'"channels": "RGB"', b'"channels": "BGR"'),
-                           ("nometa", b"\x0a\x0cinspect_pipe", b"\x0a\x0cinspect_pipX")):
+                           ("nometa", b"\x0a\x0cinspect_pipe", b"\x0a\x0cinspect_pipX"),
+                           ("states", b'"states": ["fair", "poor", "severe"]', b'"states": ["fair", "poor", "severX"]')):
         assert raw.count(old) == 1, name
         out[name] = tmp_path / f"{name}.onnx"
         out[name].write_bytes(raw.replace(old, new))
@@ -240,12 +241,12 @@ def _bad_models(tmp_path) -> dict[str, Path]:
 
 @pytest.mark.parametrize("case,words", [
     ("missing", "not found"), ("corrupt", "not a valid ONNX"), ("format", "format"),
-    ("channels", "RGB"), ("nometa", "no 'inspect_pipe' metadata"),
+    ("channels", "RGB"), ("nometa", "no 'inspect_pipe' metadata"), ("states", "severity states"),
 ])
 def test_bad_model_exits_2_with_one_line_and_saliency_still_works(tmp_path, monkeypatch, case, words):
     bad = _bad_models(tmp_path)[case]
     r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path / "o1", "--engine", "onnx", "--model", bad)
-    assert r.exit_code == 2
+    assert r.exit_code == 2 and not (tmp_path / "o1").exists()  # nothing written
     lines = [ln for ln in r.output.strip().splitlines() if ln]
     assert len(lines) == 1 and lines[0].startswith("error:") and words in lines[0] and str(bad) in lines[0], r.output
     # the saliency engine does not touch the network file at all
