@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from inspect_pipe.errors import InputError
+from inspect_pipe.saliency_defects._core import TILE_PX
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
 from ._store import DEFECTS_FORMAT, RunStore, write_json, write_png
@@ -31,7 +32,7 @@ class DetectConfig:
     kinds: tuple[str, ...] = ("corrosion", "crack")
     model: str | None = None  # default: the shipped model of the engine
     keyframe_spacing: float = 0.5  # keyframes' centres at least this many frame widths apart; 0 = no keyframes
-    tile_px: int = 768
+    tile_px: int = TILE_PX  # the detection core's tile size
     engine: str = DEFAULT_ENGINE
 
     def __post_init__(self) -> None:
