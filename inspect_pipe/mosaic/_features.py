@@ -57,12 +57,15 @@ def detect_features(
     detector: str = "sift",
     max_features: int = 1500,
     max_side_px: int = 2048,
+    scale: float = 1.0,
     low_texture_features: int = 150,
     mode: str = "auto",
 ) -> Features:
     """Detect and describe keypoints on an 8-bit grey image (H, W); ``xy`` in its pixels.
 
-    Frames larger than ``max_side_px`` are detected at reduced size (keypoints scaled back).
+    Frames are detected reduced by ``scale`` and to at most ``max_side_px`` (keypoints scaled
+    back): SIFT doubles its input first, so a 512x384 frame detected at 0.625 costs half the time
+    (73 -> 34 ms) for the same pair accuracy (see RegisterParams.detect_scale).
     When fewer than ``low_texture_features`` are found, detection is repeated on a contrast-limited
     histogram-equalised (CLAHE) image, at most 640 px on its longer side (noise averages out, the
     faint large-scale structure stays), with a detector four times as sensitive, and kept if it
@@ -73,7 +76,7 @@ def detect_features(
     """
     if mode == "low_texture":
         return _detect_scaled(gray, detector, max_features, 640, sensitive=True)
-    feats = _detect_scaled(gray, detector, max_features, max_side_px, sensitive=False)
+    feats = _detect_scaled(gray, detector, max_features, int(min(max_side_px, round(scale * max(gray.shape[:2])))), sensitive=False)
     if mode == "auto" and len(feats) < low_texture_features:
         again = _detect_scaled(gray, detector, max_features, 640, sensitive=True)
         if len(again) > len(feats):
