@@ -35,9 +35,9 @@ class EstimationParams:
     tof_timeout_s: float = param(0.1, 0.01, 1.0, "s", "TeraRanger older than this is N/A")
     sonar_max_range_m: float = param(4.9, 1.0, 7.0, "m", "HRLV-EZ4 usable range")
     tof_max_range_m: float = param(13.8, 1.0, 14.0, "m", "TeraRanger One usable range")
-    flow_latency_s: float = param(0.02, 0.0, 0.5, "s")
-    sonar_latency_s: float = param(0.05, 0.0, 0.5, "s")
-    tof_latency_s: float = param(0.01, 0.0, 0.5, "s")
+    flow_latency_s: float = param(0.02, 0.0, 0.5, "s", "PX4Flow output delay (as simulated: integration interval and bus read)")
+    sonar_latency_s: float = param(0.05, 0.0, 0.5, "s", "HRLV-EZ4 reading delay (as simulated; docs/flight.md, Simulator)")
+    tof_latency_s: float = param(0.01, 0.0, 0.5, "s", "TeraRanger One reading delay (as simulated)")
     height_jump_m: float = param(0.15, 0.05, 2.0, "m", "range change not explained by vertical motion: a floor step")
     height_step_min_m: float = param(
         0.4, 0.0, 2.0, "m", "no floor step is taken below this height (the range sensors clamp at their minimum)"
@@ -112,7 +112,7 @@ class BehaviorParams:
     response_time_s: float = param(0.3, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
     repulsion_gain_1_s: float = param(1.6, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
-    repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s")
+    repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s", "prevent_collision backs away at most this fast (Fig. 6 E-F)")
     oblique_margin_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than its axis speed: oblique surface"
     )
@@ -136,25 +136,25 @@ class BehaviorParams:
         3.0, 1.0, 6.0, "m", "diagonal motion between the beams slows from this distance to the nearer wall"
     )
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
-    stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s")
-    floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m")
+    stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s", "stick commands below this are zero (joystick centre noise)")
+    floor_attenuation_start_m: float = param(1.0, 0.5, 3.0, "m", "descents slow from this height down to floor_clearance_m")
     floor_clearance_m: float = param(0.6, 0.4, 2.0, "m", "lowest height the user may fly down to")
     max_height_m: float = param(10.0, 1.0, 14.0, "m", "limit_max_height ceiling")
     max_height_margin_m: float = param(0.5, 0.1, 2.0, "m", "limit_max_height acts this far below")
-    max_height_gain_1_s: float = param(1.0, 0.1, 5.0, "1/s")
+    max_height_gain_1_s: float = param(1.0, 0.1, 5.0, "1/s", "limit_max_height: descent speed per metre above the ceiling")
     reference_range_m: float = param(4.5, 1.0, 5.0, "m", "keep floor or front wall within this")
-    reference_gain_1_s: float = param(0.6, 0.1, 5.0, "1/s")
-    low_battery_percent: float = param(20.0, 0.0, 100.0, "%")
+    reference_gain_1_s: float = param(0.6, 0.1, 5.0, "1/s", "ensure_reference_surface_detection: speed per metre beyond the reference range")
+    low_battery_percent: float = param(20.0, 0.0, 100.0, "%", "low_battery_land below this charge")
     max_speed_m_s: float = param(1.0, 0.1, 3.0, "m/s", "largest horizontal speed command")
-    max_vertical_speed_m_s: float = param(0.6, 0.1, 2.0, "m/s")
+    max_vertical_speed_m_s: float = param(0.6, 0.1, 2.0, "m/s", "largest vertical speed command (the HRLV's 10 Hz height still follows it)")
 
 
 @dataclass(frozen=True)
 class ControlParams:
     tick_hz: float = param(50.0, 10.0, 500.0, "Hz", "rate of estimation, behaviours and control")
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
-    speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2")
-    speed_kd: float = param(0.0, 0.0, 5.0, "1")
+    speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2", "XY speed PID integral: the trim against drag and wind the feed-forward misses")
+    speed_kd: float = param(0.0, 0.0, 5.0, "1", "XY speed PID derivative: off (the flow speed is too noisy to differentiate)")
     vz_unwind_factor: float = param(
         5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
         "speed error above vz_unwind_threshold_m_s (the trim a battery sag left behind)"
@@ -171,14 +171,14 @@ class ControlParams:
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
     )
-    vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s")
-    vz_ki_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2")
+    vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s", "vertical speed PID: m/s^2 per m/s")
+    vz_ki_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "vertical speed PID integral: the hover trim (mass and thrust error)")
     height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")
-    height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3")
-    height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s")
+    height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3", "height PID integral: the hover trim while holding height")
+    height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s", "height PID damping on the measured vertical speed")
     height_integral_band_m: float = param(0.1, 0.0, 5.0, "m", "height PID integrates within this error")
     height_latch_lead_s: float = param(0.3, 0.0, 2.0, "s", "height held = altitude + vz * lead when vz command ends")
-    integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2")
+    integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2", "XY speed integrator clamp (about 11 deg of tilt)")
     vertical_integral_limit_m_s2: float = param(
         6.0, 0.0, 10.0, "m/s^2", "vertical trim range: +-30 % mass or thrust needs ~4.2 m/s^2"
     )
@@ -205,8 +205,8 @@ class ControlParams:
     accel_observer_drag_1_s: float = param(
         0.4, 0.0, 5.0, "1/s", "disturbance observers: nominal rotor drag deceleration per m/s of speed"
     )
-    max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad")
-    max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2")
+    max_tilt_rad: float = param(0.3, 0.05, 0.6, "rad", "largest roll/pitch set-point (3 m/s^2 horizontal; the firmware allows 0.6)")
+    max_vertical_accel_m_s2: float = param(4.0, 0.5, 15.0, "m/s^2", "vertical acceleration command limit around the trim (thrust-to-weight 2.2 leaves ~12)")
     takeoff_trim_ramp_m_s3: float = param(
         2.0, 0.0, 20.0, "m/s^3", "taking off without lifting after 1 s: extra growth of the vertical trim"
     )
@@ -215,14 +215,14 @@ class ControlParams:
 
 @dataclass(frozen=True)
 class FlightMachineParams:
-    takeoff_climb_m_s: float = param(0.5, 0.1, 2.0, "m/s")
+    takeoff_climb_m_s: float = param(0.5, 0.1, 2.0, "m/s", "take-off climb speed")
     takeoff_end_height_m: float = param(0.5, 0.2, 2.0, "m", "taking_off -> flying above this")
     takeoff_high_thrust_s: float = param(4.0, 0.5, 20.0, "s", "or after this long at high thrust")
     hover_height_m: float = param(1.0, 0.5, 5.0, "m", "height held after take-off")
-    descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s")
+    descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s", "descending (land requested) until descend_end_height_m")
     descend_end_height_m: float = param(0.5, 0.2, 2.0, "m", "descending -> landing below this")
     touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
-    landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s")
+    landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s", "final landing speed (below the 1 m/s a floor contact counts as a crash)")
     impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
 
