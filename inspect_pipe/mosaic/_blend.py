@@ -117,6 +117,13 @@ def exposure_gains(
     return gains / np.median(gains)  # the typical frame keeps its exposure
 
 
+def seam_size(size_wh: tuple[int, int], seam_megapix: float = BlendParams.seam_megapix) -> tuple[int, int]:
+    """Frame size (W, H) at the seam scale."""
+    w, h = size_wh
+    sc = min(1.0, float(np.sqrt(seam_megapix * 1e6 / (w * h))))
+    return max(int(round(w * sc)), 1), max(int(round(h * sc)), 1)
+
+
 def _tiles(canvas_wh: tuple[int, int], tile_px: int, margin: int):
     """(core x0, y0, x1, y1, with-margin x0, y0, x1, y1) of each tile of the canvas."""
     W, H = canvas_wh
@@ -170,8 +177,12 @@ def render(
     *,
     vignetting: Vignetting | None = None,
     params: BlendParams = BlendParams(),
+    thumbnails: dict[int, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """Blend the frames of one group. Returns (BGRA uint8 mosaic, frame px -> mosaic px homographies).
+
+    ``thumbnails`` (frame -> BGR at the seam scale, :func:`seam_size`), when given, spare the seam
+    pass from decoding the frames again (the features pass keeps them).
 
     Alpha is 255 where some frame covers the mosaic, 0 elsewhere.
     """
@@ -190,9 +201,18 @@ def render(
         return img
 
     # Pass 1: seam scale
-    sc = min(1.0, float(np.sqrt(params.seam_megapix * 1e6 / (w * h))))
+    small_wh = seam_size(size_wh, params.seam_megapix)
+    sc = small_wh[0] / w
     S = np.diag([sc, sc, 1.0])
-    small_wh = (max(int(round(w * sc)), 1), max(int(round(h * sc)), 1))
+    gain_s = cv2.resize(gain, small_wh, interpolation=cv2.INTER_AREA) if gain is not None else None
+
+    def small_prepared(f: int) -> np.ndarray:
+        t = thumbnails.get(f) if thumbnails else None
+        if t is None or t.shape[1::-1] != small_wh:
+            return cv2.resize(prepared(f), small_wh, interpolation=cv2.INTER_AREA)
+        t = _as_bgr(t)
+        return t if gain_s is None else np.clip(t.astype(np.float32) * gain_s[..., None], 0, 255).astype(np.uint8)
+
     small_canvas = (int(np.ceil(canvas_wh[0] * sc)) + 1, int(np.ceil(canvas_wh[1] * sc)) + 1)
     corners_s, imgs_s, masks_s = [], [], []
     ones_s = np.full(small_wh[::-1], 255, np.uint8)
@@ -200,7 +220,7 @@ def render(
     for f in frames:
         Hs = S @ Hc[f] @ Sin
         roi = _roi(Hs, small_wh, small_canvas)
-        small = cv2.resize(prepared(f), small_wh, interpolation=cv2.INTER_AREA)
+        small = small_prepared(f)
         imgs_s.append(_warp(small, Hs, roi))
         masks_s.append(_warp(ones_s, Hs, roi, cv2.INTER_NEAREST))
         corners_s.append((roi[0], roi[1]))

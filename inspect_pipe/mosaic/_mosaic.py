@@ -70,8 +70,10 @@ def run_mosaic(
         if progress:
             progress("blending", g + 1, len(reg.groups))
         try:
-            load = _undistorting(source.load, group.camera) if _distorted(group.camera, reg.size_wh) else source.load
-            mosaic, Hc = render(load, {f: group.H[f] for f in group.keyframes}, reg.size_wh, vignetting=reg.vignetting, params=params.blend)
+            distorted = _distorted(group.camera, reg.size_wh)
+            load = _undistorting(source.load, group.camera) if distorted else source.load
+            mosaic, Hc = render(load, {f: group.H[f] for f in group.keyframes}, reg.size_wh, vignetting=reg.vignetting,
+                                params=params.blend, thumbnails=None if distorted else reg.thumbnails)
             k0 = group.keyframes[0]
             shift = Hc[k0] @ np.linalg.inv(group.H[k0])  # the canvas offset, for frames not blended
             for f in group.frames:

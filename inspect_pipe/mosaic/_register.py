@@ -13,6 +13,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
+from ._blend import seam_size
 from ._align import AlignParams, Camera, Correspondences, align_group, quick_layout
 from ._features import Features, detect_features, to_gray
 from ._homography import MatchParams, PairFailure, PairMatch, match_pair
@@ -100,6 +101,7 @@ class Registration:
     failures: list[PairFailure]
     vignetting: Vignetting | None
     n_features: dict[int, int] = field(default_factory=dict)
+    thumbnails: dict[int, np.ndarray] = field(default_factory=dict)  # frame at the blend's seam scale (decoded once)
 
 
 Progress = Callable[[str, int, int], None]
@@ -280,6 +282,7 @@ class _Extracted:
     feats: dict[int, Features]
     unplaced: dict[int, str]
     vignetting: Vignetting | None
+    thumbnails: dict[int, np.ndarray]
 
 
 def extract_features(source: FrameSource, prior, params: RegisterParams, workers: int, progress: Progress | None) -> _Extracted:
@@ -292,6 +295,7 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
     unplaced: dict[int, str] = {}
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
+    thumbs: dict[int, np.ndarray] = {}
 
     def extract(i: int, mode: str):
         why = prior.skip_reason(i) if prior is not None else ""
@@ -303,7 +307,8 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
             return i, str(err), None, None
         gray = to_gray(img)
         small = cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA)
-        return i, "", (img.shape[1], img.shape[0]), (small, detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale, mode=mode))
+        seam = cv2.resize(img, seam_size((img.shape[1], img.shape[0])), interpolation=cv2.INTER_AREA)
+        return i, "", (img.shape[1], img.shape[0]), (small, seam, detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale, mode=mode))
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for i, err, wh, out in pool.map(lambda i: extract(i, "normal"), range(n)):
@@ -318,15 +323,16 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
                 unplaced[i] = f"size {wh[0]}x{wh[1]} differs from the sweep's {size_wh[0]}x{size_wh[1]}"
                 continue
             vig.add_thumbnail(out[0])
-            feats[i] = out[1]
+            thumbs[i] = out[1]
+            feats[i] = out[2]
     poor = [i for i, f in feats.items() if len(f) < params.low_texture_features]
     if params.low_texture_share < 1 and len(poor) >= max(2, params.low_texture_share * len(feats)):
         with ThreadPoolExecutor(max_workers=workers) as pool:
             for i, err, wh, out in pool.map(lambda i: extract(i, "low_texture"), sorted(feats)):
                 if progress:
                     progress("features (low texture)", i + 1, n)
-                feats[i] = out[1]
-    return _Extracted(size_wh, feats, unplaced, vig.result() if size_wh else None)
+                feats[i] = out[2]
+    return _Extracted(size_wh, feats, unplaced, vig.result() if size_wh else None, thumbs)
 
 
 @dataclass
@@ -513,5 +519,5 @@ def register(
     groups.sort(key=lambda g: (-len(g.frames), g.frames[0]))
     return Registration(
         ex.size_wh, groups, dict(sorted(unplaced.items())), edges + chain_pairs, pairs.failures, ex.vignetting,
-        {f: len(ex.feats[f]) for f in all_valid},
+        {f: len(ex.feats[f]) for f in all_valid}, ex.thumbnails,
     )
