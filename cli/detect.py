@@ -241,7 +241,7 @@ def run(
     input: Annotated[Path, typer.Argument(help="An image, a folder of images, or a mosaic output folder.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one): .onnx (onnx), .npz (saliency) or .json (fused: its parameters).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; defects_unet_v2.onnx has condition states), .npz (saliency) or .json (fused: its parameters).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = TILE_PX,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
@@ -254,7 +254,9 @@ def run(
     """
     from inspect_pipe.saliency_defects import load_engine
 
-    eng = load_engine(engine.value, model)  # one line and exit 2 for a missing or bad model
+    from cli.run import shipped_or_given
+
+    eng = load_engine(engine.value, shipped_or_given(model) if model else None)  # one line and exit 2 for a missing or bad model
     eng.check_tile(tile_px)
     kinds = _kinds(kind)
     eng.check_kinds(kinds)

@@ -68,7 +68,7 @@ RichProgress = StageProgress  # the name demo and older code import
 
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
                  m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
-                 engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None, camera=None):
+                 engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None, camera=None, model: Optional[Path] = None):
     from inspect_pipe.pipeline import DetectConfig, RunConfig
     from inspect_pipe.report import SCHEMES
 
@@ -80,10 +80,19 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
     report = {"rating": {"scheme": scheme, "area_size_m": area_m}, "pdf": not no_pdf}
     if m_per_px:
         report["m_per_px"] = m_per_px
-    return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine),
+    return RunConfig(input=input, survey=survey or {}, focal_px=focal_px, detect=DetectConfig(kinds=k, keyframe_spacing=keyframe_spacing, engine=engine,
+                                                                                                     model=str(shipped_or_given(model)) if model else None),
                      report=report, report_out=str(report_out) if report_out else None, verify=verify,
                      survey_plan=survey_plan.to_json() if survey_plan is not None else None,
                      camera=camera.to_json() if camera is not None else None)
+
+
+def shipped_or_given(model: Path) -> Path:
+    """``--model``: the file given, or a model shipped in the package by that name."""
+    from inspect_pipe.saliency_defects._onnx_detect import default_onnx_path
+
+    shipped = default_onnx_path().parent / Path(model).name
+    return Path(model) if Path(model).exists() or not shipped.exists() else shipped
 
 
 def check_engine(dc) -> None:
@@ -162,6 +171,7 @@ def run(
     verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
     survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP)] = None,
     camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): the simulated camera of fly: inputs, and K and distortion for the mosaic (over a sweep's own).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Detect step: the engine's model file, or the name of a shipped one (defects_unet_v2.onnx: the network with condition states, which the report turns into hard rust and the fair / poor / severe breakdown).")] = None,
 ) -> None:
     from inspect_pipe.pipeline import input_kind, run_many, run_pipeline
 
@@ -180,7 +190,7 @@ def run(
                 note(line)
     cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
                          m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan,
-                         camera=cam) for s in inputs]
+                         camera=cam, model=model) for s in inputs]
     check_engine(cfgs[0].detect)
     for spec in inputs:
         if input_kind(spec) == "sweep":

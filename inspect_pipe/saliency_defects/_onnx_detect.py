@@ -322,4 +322,13 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
 
 
 def default_onnx_path() -> Path:
+    """The default network: the half-resolution U-Net (v1). Its mean validation F (0.8329) is above
+    the pretrained-encoder network's (0.8286), and in the demo flight v2 missed all three cracks
+    that v1 finds (docs/detect_onnx.md); v2 is shipped for its condition states."""
+    return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
+
+
+def condition_state_onnx_path() -> Path:
+    """The network with a condition-state head (v2: EfficientNet-Lite0 U-Net, int8):
+    ``detect --model`` it for ``NAME.severity.png`` and the corrosion regions' states."""
     return Path(__file__).parent / "models" / "defects_unet_v2.onnx"

@@ -52,10 +52,10 @@ def test_first_run_runs_every_step_and_writes_the_report(done_run):
     # the report names the engine and model that produced the detections, in every output
     assert run["steps"]["detect"]["options"]["detect"]["engine"] == "onnx"
     trace = doc["traceability"]
-    assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v2.onnx", "2")
+    assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v1.onnx", "1")
     html = (store.report_dir / "report.html").read_text()
-    assert "onnx engine, model defects_unet_v2.onnx v2" in html and "detector onnx (defects_unet_v2.onnx v2)" in html
-    assert "onnx engine, defects_unet_v2.onnx v2" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
+    assert "onnx engine, model defects_unet_v1.onnx v1" in html and "detector onnx (defects_unet_v1.onnx v1)" in html
+    assert "onnx engine, defects_unet_v1.onnx v1" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
 
 
 def test_second_run_skips_finished_steps(done_run):

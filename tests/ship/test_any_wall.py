@@ -231,8 +231,11 @@ def test_report_of_a_side_shell_survey_speaks_ship_terms(tmp_path):
     sweep = _fly_sweep(tmp_path, "left")
     plan = yaml.safe_load(PLAN)
     plan["limitations"] = ["hopper plating not surveyed (ladder access)"]
-    cfg = RunConfig(input=str(sweep), detect=DetectConfig(keyframe_spacing=1.0), report={"pdf": False}, survey_plan=plan)
-    # WHEN the pipeline runs
+    from inspect_pipe.saliency_defects._onnx_detect import condition_state_onnx_path
+
+    cfg = RunConfig(input=str(sweep), detect=DetectConfig(keyframe_spacing=1.0, model=str(condition_state_onnx_path())),
+                    report={"pdf": False}, survey_plan=plan)
+    # WHEN the pipeline runs (with the network that has condition states)
     run_pipeline(tmp_path / "run", cfg, log=lambda s: None)
     # THEN every entry carries its location in frames and height, consistent with its wall point
     reg = json.loads((tmp_path / "run" / "report" / "defects.json").read_text())
@@ -250,3 +253,7 @@ def test_report_of_a_side_shell_survey_speaks_ship_terms(tmp_path):
     assert "Limitations" in html and "hopper plating not surveyed" in html and "Signatures" in html
     assert reg["defects"][0]["location"]["text"] in html
     assert "{&#39;" not in html and "{'" not in html
+    # AND hard rust is the corrosion in condition state poor or severe; corrosion entries carry their state
+    assert "condition state poor or severe" in reg["traceability"]["hard_rust_rule"]
+    corr = [d for d in reg["defects"] if d["class"] == "corrosion"]
+    assert corr and all(d["severity"]["state"] in ("fair", "poor", "severe") for d in corr)
