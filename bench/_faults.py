@@ -158,11 +158,18 @@ def _sha(p: Path) -> str:
     return hashlib.sha256(p.read_bytes()).hexdigest()
 
 
+def _pixels(p: Path) -> str:
+    """sha256 of the decoded pixels: the capture's writer picks its PNG compression by its queue
+    (under load it stores), so equal frames may differ in bytes, never in pixels."""
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    return "undecodable" if img is None else hashlib.sha256(img.tobytes()).hexdigest()
+
+
 def sweep_sig(s: Path) -> list:
     from inspect_pipe.capture import read_sweep
 
     sw = read_sweep(s)
-    return [(f.index, round(f.t_s, 6), None if f.position_m is None else tuple(round(x, 6) for x in f.position_m), _sha(f.image_path))
+    return [(f.index, round(f.t_s, 6), None if f.position_m is None else tuple(round(x, 6) for x in f.position_m), _pixels(f.image_path))
             for f in sw.frames]
 
 
@@ -237,6 +244,12 @@ def kill(fx: Fixture, name: str, work: Path, rng: np.random.Generator) -> Result
         except Exception as err:  # noqa: BLE001
             bad.append(f"killed sweep unreadable: {err}")
         shutil.move(str(work / "sweep"), str(work / "sweep.killed"))  # capture never writes into a used folder: a new one
+    if name == "import" and (work / "imported").exists():
+        # import renames its finished temporary folder into place: a kill after the rename leaves
+        # the whole sweep (equal to the reference); like capture, it never writes into a used folder
+        if signature("import", work) != signature("import", fx.ref):
+            bad.append("killed import: its sweep is not the reference's")
+        shutil.move(str(work / "imported"), str(work / "imported.killed"))
     r = cli(argv)
     if r.returncode != 0:
         return Result(f"kill:{name}", injected, False, len(bad) + 1, f"rerun failed: {(r.stdout + r.stderr).strip()[-300:]}")

@@ -57,7 +57,7 @@ def run(data: Path) -> str:
         "still running at the moment drawn (uniform over its uninterrupted duration); disk full and read-only use a "
         "tmpfs (root) with a random 5-90 % of the room the output needs. Recovered: no file half-written (every JSON parses, "
         "every image decodes, every frames.jsonl line but a cut last one parses), the rerun exits 0, and its result equals "
-        "the reference: a sweep's frame lines and image bytes (a killed capture's frames are the reference's first ones), "
+        "the reference: a sweep's frame lines and decoded pixels (a killed capture's frames are the reference's first ones; a killed import's sweep, renamed into place whole, is the reference's), "
         "mosaic.json's frames and H and the mosaic's bytes, the detections' regions, the register's entries; a full or "
         "read-only disk gives one `error:` line with exit 2 first. Camera lost: the frames before the loss equal the "
         "reference's. Link died: every frame written, state null only after the silence. Corrupt frames: "
