@@ -205,3 +205,19 @@ def load_plan(path):
     for w in plan.warnings:
         note(f"warning: {path}: {w}")
     return plan
+
+
+def web_server_token(host: str, token, certfile, keyfile):
+    """The checks every web page server (base station, review) makes before it binds: the web
+    extra, the TLS pair, the token's length; off loopback a token is required (a new random one
+    when none is given). Returns the token to require (None on loopback without one)."""
+    from inspect_pipe.errors import InputError as _InputError
+    from inspect_pipe.flight.base_station import check_tls, is_loopback_host, new_token, require_web
+
+    require_web()
+    check_tls(certfile, keyfile)
+    if token is not None and len(token) < 12:
+        raise _InputError("--token", "too short", "at least 12 characters")
+    if not is_loopback_host(host) and token is None:
+        token = new_token()
+    return token

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import one_line_errors, web_server_token
 from inspect_pipe.errors import InputError
 
 HELP = (
@@ -39,14 +39,9 @@ def base_station(
     keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:
     """Serve the surveyor's base station."""
-    from inspect_pipe.flight.base_station import build_station, check_tls, is_loopback_host, new_token, require_web, serve
+    from inspect_pipe.flight.base_station import build_station, is_loopback_host, serve
 
-    require_web()
-    check_tls(certfile, keyfile)
-    if token is not None and len(token) < 12:
-        raise InputError("--token", "too short", "at least 12 characters")
-    if not is_loopback_host(host) and token is None:
-        token = new_token()
+    token = web_server_token(host, token, certfile, keyfile)
     if command_log.exists() and command_log.is_dir():
         raise InputError(str(command_log), "is a directory", "give a file path for the command log")
     station = build_station(vehicle, host=host, port=port, token=token, command_log=command_log, tls=certfile is not None)

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli._common import one_line_errors
+from cli._common import one_line_errors, web_server_token
 from inspect_pipe.errors import InputError
 
 HELP = (
@@ -38,15 +38,10 @@ def review(
     keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:
     """Review the register in the browser."""
-    from inspect_pipe.flight.base_station import check_tls, is_loopback_host, new_token, require_web, serve
+    from inspect_pipe.flight.base_station import is_loopback_host, serve
     from inspect_pipe.review_app import ReviewConfig, ReviewServer, open_review
 
-    require_web()
-    check_tls(certfile, keyfile)
-    if token is not None and len(token) < 12:
-        raise InputError("--token", "too short", "at least 12 characters")
-    if not is_loopback_host(host) and token is None:
-        token = new_token()
+    token = web_server_token(host, token, certfile, keyfile)
     rv, store, cfg = open_review(run_dir, reviewer)
     server = ReviewServer(rv, store, cfg, ReviewConfig(host=host, port=port, token=token, tls=certfile is not None, render_after_s=render_after))
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
