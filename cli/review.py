@@ -8,7 +8,6 @@ from typing import Annotated, Optional
 import typer
 
 from cli._common import one_line_errors, web_server_token
-from inspect_pipe.errors import InputError
 
 HELP = (
     "Serve the run's defect register for review in the browser: confirm, reject, reclassify "
