@@ -51,6 +51,49 @@ OP_SMALL = [{"t": 0.5, "button": "takeoff"}, {"t": 3.0, "button": "inspection_mo
             {"t": 7.5, "stick": {"vx": 0, "vy": 0, "vz": 0, "yaw_rate": 0}}]
 
 
+def pipeline_vs_detector(wall, run: Path, defects, engine: str = "onnx") -> dict:
+    """Does the pipeline keep the detector's quality? On the wall texture's pixels that the mosaic
+    imaged: corrosion IoU of the register (entries not rejected, their wall polygons) against the
+    true corrosion, beside the IoU of the same engine run on the wall texture itself at the
+    mosaic's resolution; and the share of corrosion entries that touch true corrosion."""
+    from inspect_pipe.capture._geometry import texture_px_to_wall
+    from inspect_pipe.saliency_defects import load_engine
+
+    img = cv2.imread(str(wall.image), cv2.IMREAD_COLOR)
+    labels = cv2.imread(str(wall.labels), cv2.IMREAD_UNCHANGED)
+    truth = np.isin(labels, [int(t.id[1:]) for t in wall.truth if t.cls == "corrosion"])
+    mdoc = json.loads((run / "mosaic" / "mosaic.json").read_text())
+    T = texture_px_to_wall(wall.m_per_px, wall.origin_uv)  # texture px -> wall m
+    M = np.linalg.inv(np.array(mdoc["wall_from_mosaic"], float)) @ T  # texture px -> mosaic px
+    alpha = cv2.imread(str(run / "mosaic" / "mosaic.png"), cv2.IMREAD_UNCHANGED)[:, :, 3]
+    h, w = truth.shape
+    imaged = cv2.warpPerspective(alpha, M, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
+    Tinv = np.linalg.inv(T)
+    pipe = np.zeros((h, w), np.uint8)
+    entries = [d for d in defects if d.cls == "corrosion" and d.status != "rejected"]
+    touching = 0
+    for d in entries:
+        q = np.c_[np.asarray(d.polygon_wall_m, float), np.ones(len(d.polygon_wall_m))] @ Tinv.T
+        poly = np.round(q[:, :2] / q[:, 2:3]).astype(np.int32)
+        one = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(one, [poly], 1)
+        touching += bool((one.astype(bool) & truth).any())
+        pipe |= one
+    eng = load_engine(engine)
+    s = wall.m_per_px / float(mdoc["m_per_px"])  # texture px -> mosaic px
+    small = cv2.resize(img, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    det = eng.detect(small, kinds=("corrosion",))
+    own = cv2.resize(eng.decide(det.class_probs["corrosion"], "corrosion").astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+
+    def iou(m):
+        m, t = m & imaged, truth & imaged
+        return float((m & t).sum() / max(1, (m | t).sum()))
+
+    ip, io_ = iou(pipe > 0), iou(own)
+    return {"pipeline_iou": ip, "detector_iou": io_, "kept": ip / io_ if io_ > 0 else float("nan"),
+            "entries": len(entries), "touching": touching}
+
+
 def _truth_run(run: Path, wall, sweep) -> Path:
     """A copy of ``run`` whose detections are the true masks carried into the mosaic."""
     from inspect_pipe.pipeline import RunStore
@@ -174,6 +217,10 @@ def run(data: Path) -> str:
             w(f"| detector register: centroid error median | {100 * np.median(ce):.1f} cm | |\n")
         if ae:
             w(f"| detector register: corrosion area error median | {100 * np.median(ae):.0f} % | |\n")
+        keep = pipeline_vs_detector(wall, run2, reg, engine)
+        w(f"| pipeline keeps the detector: corrosion IoU of the register / of the {engine} engine on the wall texture (imaged part) | "
+          f"{keep['pipeline_iou']:.3f} / {keep['detector_iou']:.3f} = **{100 * keep['kept']:.0f} %** | >= 90 % |\n")
+        w(f"| corrosion entries touching true corrosion | {keep['touching']}/{keep['entries']} | >= 75 % |\n")
         w(f"| 200-frame sweep, raw frames -> report.pdf | {t_pdf:.1f} s ({', '.join(f'{k} {v:.1f} s' for k, v in steps_t.items())}) | <= 60 s |\n")
 
         # Dask: 8 small sweeps (40 frames, 376x240): a local cluster of 1 worker vs 2, and one process on every core
