@@ -71,6 +71,34 @@ def _components(mask: np.ndarray, min_px: int) -> list[np.ndarray]:
     return [lab == k for k in range(1, n) if st[k, 4] >= min_px]
 
 
+def _paste_corrosion(item, img: np.ndarray, labels: np.ndarray, occupied: np.ndarray, size_m: tuple[float, float],
+                     m_per_px: float, label: int, rng, margin: int) -> bool:
+    """Blend the largest labelled corrosion patch of a VT image into ``img`` at a free place, its
+    longest side drawn from ``size_m`` (wall metres); its pixels get ``label`` in ``labels``. False when the image
+    has no usable patch or no place is free."""
+    src, gt = item.load()
+    if src.ndim != 3:
+        return False
+    comps = [c for c in _components(gt, 1500) if c.mean() < 0.35]
+    if not comps:
+        return False
+    comp = max(comps, key=lambda c: c.sum())
+    ys, xs = np.nonzero(comp)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    s = rng.uniform(*size_m) / m_per_px / max(y1 - y0, x1 - x0)
+    patch = cv2.resize(src[y0:y1, x0:x1], None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    pm = cv2.resize(comp[y0:y1, x0:x1].astype(np.float32), (patch.shape[1], patch.shape[0]), interpolation=cv2.INTER_LINEAR)
+    at = _place(occupied, patch.shape[0], patch.shape[1], rng, margin)
+    if at is None:
+        return False
+    y, x = at
+    alpha = cv2.GaussianBlur(pm, (0, 0), 1.0)[:, :, None]
+    roi = img[y:y + patch.shape[0], x:x + patch.shape[1]].astype(np.float32)
+    img[y:y + patch.shape[0], x:x + patch.shape[1]] = (alpha * patch + (1 - alpha) * roi).astype(np.uint8)
+    labels[y:y + patch.shape[0], x:x + patch.shape[1]][pm > 0.5] = label
+    return True
+
+
 def _place(occupied: np.ndarray, hh: int, ww: int, rng, margin: int) -> tuple[int, int] | None:
     H, W = occupied.shape
     for _ in range(200):
@@ -101,28 +129,9 @@ def build_demo_wall(out_dir: Path, data: Path | None, *, size_m=(3.6, 2.4), m_pe
     for it in items:
         if sum(t[1] == "corrosion" for t in truth) >= n_corrosion:
             break
-        src, gt = it.load()
-        if src.ndim != 3:
+        if not _paste_corrosion(it, img, labels, occupied, (0.12, 0.30), m_per_px, len(truth) + 1, rng, margin):
             continue
-        comps = [c for c in _components(gt, 1500) if c.mean() < 0.35]
-        if not comps:
-            continue
-        comp = max(comps, key=lambda c: c.sum())
-        ys, xs = np.nonzero(comp)
-        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
-        size = rng.uniform(0.12, 0.30) / m_per_px  # longest side on the wall
-        s = size / max(y1 - y0, x1 - x0)
-        patch = cv2.resize(src[y0:y1, x0:x1], None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        pm = cv2.resize(comp[y0:y1, x0:x1].astype(np.float32), (patch.shape[1], patch.shape[0]), interpolation=cv2.INTER_LINEAR)
-        at = _place(occupied, patch.shape[0], patch.shape[1], rng, margin)
-        if at is None:
-            continue
-        y, x = at
-        alpha = cv2.GaussianBlur(pm, (0, 0), 1.0)[:, :, None]
-        roi = img[y:y + patch.shape[0], x:x + patch.shape[1]].astype(np.float32)
-        img[y:y + patch.shape[0], x:x + patch.shape[1]] = (alpha * patch + (1 - alpha) * roi).astype(np.uint8)
         truth.append((f"T{len(truth) + 1:02d}", "corrosion", f"vt_corrosion_cs/{it.stem}"))
-        labels[y:y + patch.shape[0], x:x + patch.shape[1]][pm > 0.5] = len(truth)
     cf = data / "defects" / "crackforest"
     if n_cracks and (cf / "image").is_dir():
         for it in labelled_set(cf, split="eval")[: n_cracks * 3]:
@@ -207,28 +216,9 @@ def edit_demo_wall(wall: DemoWall, out_dir: Path, data: Path, *, n_new: int = 3,
     for it in items:
         if added >= n_new:
             break
-        src, gt = it.load()
-        if src.ndim != 3:
+        if not _paste_corrosion(it, img, labels, occupied, (0.10, 0.22), wall.m_per_px, len(truth) + 1, rng, margin):
             continue
-        comps = [c for c in _components(gt, 1500) if c.mean() < 0.35]
-        if not comps:
-            continue
-        comp = max(comps, key=lambda c: c.sum())
-        ys, xs = np.nonzero(comp)
-        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
-        size = rng.uniform(0.10, 0.22) / wall.m_per_px
-        sc = size / max(y1 - y0, x1 - x0)
-        patch = cv2.resize(src[y0:y1, x0:x1], None, fx=sc, fy=sc, interpolation=cv2.INTER_AREA)
-        pm = cv2.resize(comp[y0:y1, x0:x1].astype(np.float32), (patch.shape[1], patch.shape[0]), interpolation=cv2.INTER_LINEAR)
-        at = _place(occupied, patch.shape[0], patch.shape[1], rng, margin)
-        if at is None:
-            continue
-        y, x = at
-        a = cv2.GaussianBlur(pm, (0, 0), 1.0)[:, :, None]
-        roi = img[y:y + patch.shape[0], x:x + patch.shape[1]].astype(np.float32)
-        img[y:y + patch.shape[0], x:x + patch.shape[1]] = (a * patch + (1 - a) * roi).astype(np.uint8)
         truth.append((f"T{len(truth) + 1:02d}", "corrosion", f"vt_corrosion_cs/{it.stem}"))
-        labels[y:y + patch.shape[0], x:x + patch.shape[1]][pm > 0.5] = len(truth)
         changes.append(("new", len(truth)))
         added += 1
     Path(out_dir).mkdir(parents=True, exist_ok=True)
