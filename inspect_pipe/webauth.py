@@ -46,6 +46,15 @@ class TokenBucket:
         return (1.0 - self.tokens) / self.rate
 
 
+def login_page(app: str, heading: str) -> str:
+    """The login form every page server shows (``inspect_pipe/login.html``): the token is posted
+    once to /login and exchanged for a session cookie. ``<!--error-->`` marks where a refusal goes."""
+    from importlib import resources
+    from string import Template
+
+    return Template((resources.files("inspect_pipe") / "login.html").read_text()).substitute(app=app, heading=heading)
+
+
 def is_loopback(host: str) -> bool:
     return host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
 

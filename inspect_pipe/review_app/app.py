@@ -27,6 +27,7 @@ from typing import Any
 from inspect_pipe.errors import InputError
 from inspect_pipe.report._review import Review, ReviewError, utc_now
 from inspect_pipe.webauth import TokenSessions, is_loopback
+from inspect_pipe.webauth import login_page as login_page_html
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +180,7 @@ class ReviewServer:
         static = resources.files("inspect_pipe.review_app") / "static"
         page = (static / "index.html").read_text()
         script = (static / "review.js").read_text()
-        login_page = (static / "login.html").read_text()
+        login_page = login_page_html("review", "Register review")
         no_store = {"Cache-Control": "no-store"}
 
         def error(status: int, message: str) -> Response:

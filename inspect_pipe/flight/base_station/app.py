@@ -45,6 +45,7 @@ from typing import IO, Any
 from inspect_pipe.flight.base_station.realtime import OperatorInbox, RealTimeFlight
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
 from inspect_pipe.webauth import SESSION_COOKIE, TokenBucket, TokenSessions, is_loopback  # noqa: F401 (re-exported)
+from inspect_pipe.webauth import login_page as login_page_html
 
 __all__ = ["SESSION_COOKIE", "BaseStation", "StationConfig", "TokenBucket", "is_loopback", "parse_client_message"]
 
@@ -227,7 +228,7 @@ class BaseStation:
         page = (static / "index.html").read_text()
         script = (static / "app.js").read_text()
 
-        login_page = (static / "login.html").read_text()
+        login_page = login_page_html("base station", "Surveyor base station")
         url_token = self.auth.url_token_response()
 
         async def index(request: Any) -> Response:
