@@ -216,13 +216,14 @@ class Result:
     detail: str = ""
 
 
-def kill(fx: Fixture, name: str, work: Path, rng: np.random.Generator) -> Result:
-    """SIGKILL ``name`` at a uniformly random moment of its uninterrupted duration, then rerun."""
+def kill(fx: Fixture, name: str, work: Path, rng: np.random.Generator, frac: tuple[float, float] = (0.05, 0.95)) -> Result:
+    """SIGKILL ``name`` at a uniformly random moment of its uninterrupted duration (the fraction
+    ``frac`` of it), then rerun."""
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
     argv = commands(fx, work)[name]
-    at = float(rng.uniform(0.05, 0.95)) * fx.times[name]
+    at = float(rng.uniform(*frac)) * fx.times[name]
     proc = subprocess.Popen(CLI + [str(a) for a in argv], env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         proc.wait(timeout=at)

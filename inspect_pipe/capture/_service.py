@@ -301,6 +301,8 @@ def run_capture(
         summary = {"stop_reason": reason.value, "detail": detail, "frames_grabbed": grabbed, "frames_without_state": no_state if state_feed is not None else None,
                    "dropped_source": dropped_source, "skipped_deadlines": sched.skipped_total if sched else 0,
                    "elapsed_s": round(elapsed, 3), "device_to_host_clock": fit}
+        if state_feed is not None and hasattr(state_feed, "describe"):  # its clock map as it stood at the end
+            summary["vehicle"] = state_feed.describe()
         stats = writer.close(summary)
         sys.setswitchinterval(switch)
     if writer.error is not None and reason not in (StopReason.WRITER_FAILED,):

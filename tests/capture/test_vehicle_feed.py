@@ -161,6 +161,8 @@ def test_capture_stamps_frames_from_a_live_autopilot_and_survives_its_death(tmp_
     assert len(lines) == res.frames_written >= 30
     assert len(with_state) >= 12 and len(without) >= 10 and res.frames_without_state == len(without)
     assert desc["clock"]["method"] == "TIMESYNC"
+    complete = json.loads((tmp_path / "sweep" / "COMPLETE").read_text())["summary"]
+    assert complete["vehicle"]["clock"]["method"] == "TIMESYNC" and complete["vehicle"]["clock"]["offset_s"] is not None
     # positions advance at the autopilot's 0.5 m/s between consecutive stamped frames
     xs = np.array([x["state"]["position_m"][0] for x in with_state])
     ts = np.array([x["t_s"] for x in with_state])

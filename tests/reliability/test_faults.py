@@ -22,8 +22,14 @@ def _check(r: F.Result):
 
 
 def test_sigkill_mid_mosaic_then_rerun_equals_uninterrupted(fx, tmp_path):
+    # The reference duration was timed once; on a machine that has since become faster a late
+    # moment can fall after the command finished (not injected): draw again, earlier, a few times.
     rng = np.random.default_rng(4)
-    _check(F.kill(fx, "mosaic", tmp_path / "k", rng))
+    for attempt in range(4):
+        r = F.kill(fx, "mosaic", tmp_path / f"k{attempt}", rng, frac=(0.05, 0.95 / 2 ** attempt))
+        if r.injected:
+            break
+    _check(r)
 
 
 @pytest.mark.parametrize("read_only", [False, True])
