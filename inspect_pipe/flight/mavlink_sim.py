@@ -5,7 +5,10 @@ The MuJoCo quadrotor and its sensors are those of the scenario runner; in front 
 an autopilot does for a companion computer:
 
 * heartbeat (1 Hz), ATTITUDE, LOCAL_POSITION_NED, HIGHRES_IMU (50 Hz), every new DISTANCE_SENSOR
-  and OPTICAL_FLOW_RAD reading, BATTERY_STATUS (2 Hz), EXTENDED_SYS_STATE (5 Hz);
+  and OPTICAL_FLOW_RAD reading, BATTERY_STATUS (2 Hz), EXTENDED_SYS_STATE (5 Hz). ATTITUDE is the
+  autopilot's ESTIMATE (the simulated IMU's roll/pitch estimate with its error, its gyro-integrated
+  heading, its gyro rates with their bias), HIGHRES_IMU the accelerometer's specific force and the
+  gyro as measured: what a real autopilot streams, never the simulator's true attitude;
 * COMMAND_LONG arm/disarm, take-off, land, set mode (acknowledged with COMMAND_ACK); TIMESYNC
   requests answered with the autopilot's boot clock;
 * velocity set-points (SET_POSITION_TARGET_LOCAL_NED, velocity only) tracked by the autopilot's
@@ -14,7 +17,8 @@ an autopilot does for a companion computer:
   set-points are already streaming.
 
 The autopilot's velocity/height controller is the same PID design as the onboard stack's, fed the
-autopilot's own state estimate (here the simulator's truth, as a well-tuned EKF would give).
+autopilot's own state estimate (here the simulator's truth, as a well-tuned EKF would give; the
+attitude it streams is its estimate, above).
 A scenario ``link_loss`` fault drops every packet both ways while active.
 """
 
@@ -272,7 +276,7 @@ class SimulatedAutopilot:
         target, fresh = self._target()
         x, y, z = sim.position
         vx, vy, vz = sim.velocity
-        roll_w, pitch_w, yaw_w = sim.euler()
+        yaw_w = sim.euler()[2]
         c, s = math.cos(yaw_w), math.sin(yaw_w)
         alt = z - self.parts.vehicle.leg_height_m
         est = StateEstimate(alt, alt, c * vx + s * vy, -s * vx + c * vy, vz, EstimationMode.BOTTOM)
@@ -292,7 +296,7 @@ class SimulatedAutopilot:
 
         meas = self.sensors.read(now, sim)
         if not self.link_down:
-            self._send_telemetry(now, meas, roll_w, pitch_w, yaw_w)
+            self._send_telemetry(now, meas)
 
         dist = self.geometry.clearances(x, y, z)
         on_floor = z - self.parts.vehicle.leg_height_m < 0.02
@@ -333,8 +337,8 @@ class SimulatedAutopilot:
             return mc.LandedState.TAKEOFF
         return mc.LandedState.IN_AIR
 
-    def _send_telemetry(self, now: float, meas: Any, roll_w: float, pitch_w: float, yaw_w: float) -> None:
-        C, ep, sim = self.common, self.ep, self.sim
+    def _send_telemetry(self, now: float, meas: Any) -> None:
+        C, ep = self.common, self.ep
         if ep.peer is None:
             return
         ms = int(now * 1000)
@@ -351,19 +355,20 @@ class SimulatedAutopilot:
         if self._k % 25 == 0:
             ep.send(C.MAVLink_battery_status_message(0, 0, 0, 32767, [3700 * 3] + [65535] * 9, -1, -1, -1,
                                                      int(round(self.battery.percent))))
-        roll, pitch, yaw = mc.attitude_from_world(roll_w, pitch_w, yaw_w)
-        p, q, r = sim.body_rates
-        ep.send(C.MAVLink_attitude_message(ms, roll, pitch, yaw, p, -q, -r))
-        x, y, z = sim.position
-        vx, vy, vz = sim.velocity
+        i = meas.imu  # None on the first tick only (no interval to average over yet)
+        p = q = 0.0
+        if i is not None:
+            # The autopilot's attitude estimate and its gyro, as a real autopilot streams them:
+            # body FLU (stack) -> FRD (MAVLink) negates y and z, world yaw -> NED yaw negates it.
+            roll, pitch, yaw = mc.attitude_from_world(i.roll_rad, i.pitch_rad, i.yaw_rad or 0.0)
+            p, q, r = i.p_rad_s, -i.q_rad_s, -i.r_rad_s
+            ep.send(C.MAVLink_attitude_message(ms, roll, pitch, yaw, p, q, r))
+            ep.send(C.MAVLink_highres_imu_message(us, i.fx_m_s2, -i.fy_m_s2, -i.fz_m_s2, p, q, r,
+                                                  0, 0, 0, 0, 0, 0, 20.0, 0b111111))
+        x, y, z = self.sim.position
+        vx, vy, vz = self.sim.velocity
         x0, y0, _ = self.start
         ep.send(C.MAVLink_local_position_ned_message(ms, x - x0, -(y - y0), -self.altitude_m, vx, -vy, -vz))
-        if meas.imu is not None:
-            i = meas.imu
-            c, s = math.cos(yaw_w), math.sin(yaw_w)
-            aw = (c * i.ax_m_s2 - s * i.ay_m_s2, s * i.ax_m_s2 + c * i.ay_m_s2, i.az_m_s2)
-            fx, fy, fz = mc.imu_from_world(aw, roll_w, pitch_w, yaw_w)
-            ep.send(C.MAVLink_highres_imu_message(us, fx, fy, fz, p, -q, -r, 0, 0, 0, 0, 0, 0, 20.0, 0b111111))
         prev = self._prev_meas
         for slot, (sid, kind, orient, lo, hi) in mc.DISTANCE_SENSORS.items():
             reading = getattr(meas, slot.value)
@@ -377,7 +382,9 @@ class SimulatedAutopilot:
             prev[name] = f
             a, b = (f.vx_m_s, f.vy_m_s) if sid == 0 else (f.vy_m_s, f.vz_m_s)
             d = sonar.range_m if sonar is not None and sonar.range_m else 1.0
-            fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, -q)
+            # The gyro fields carry what was subtracted (the receiver takes it out again); the
+            # unit's own compensation error is already in the metric flow.
+            fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, q)
             ep.send(C.MAVLink_optical_flow_rad_message(us, sid, fr.integration_time_us, fr.integrated_x, fr.integrated_y,
                                                        fr.integrated_xgyro, fr.integrated_ygyro, 0.0, 2000, fr.quality, 0, fr.distance_m))
 

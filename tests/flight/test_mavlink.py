@@ -159,6 +159,56 @@ def test_px4_refuses_offboard_without_a_stream_then_flies_and_hovers_when_the_st
         h.close()
 
 
+def test_attitude_and_imu_are_the_autopilots_estimate_and_measurement_not_the_truth() -> None:
+    """GIVEN the simulated PX4 flying (climb, then 0.5 m/s forward: the estimate's error has a
+    level bias, a drift and an acceleration transient) WHEN the companion decodes ATTITUDE and
+    HIGHRES_IMU THEN it gets the autopilot's roll/pitch ESTIMATE, gyro heading and gyro rates
+    (not the simulator's true attitude), and the same heading-frame acceleration the in-process
+    stack computes from the same reading."""
+    h = Harness(mc.Autopilot.PX4)
+    link = MavlinkLink(f"udpout:127.0.0.1:{free_udp_port()}")  # decoder only: never connected
+    sent: dict[int, tuple] = {}  # time_boot_ms -> (the IMU reading the tick produced, true euler)
+    read = h.ap.sensors.read
+
+    def recording_read(now, sim):
+        meas = read(now, sim)
+        if meas.imu is not None:
+            sent[int(now * 1000)] = (meas.imu, sim.euler())
+        return meas
+
+    h.ap.sensors.read = recording_read  # type: ignore[method-assign]
+    errors, checked_imu = [], 0
+    try:
+        h.step(0.3, SpeedCommand())
+        assert h.command(mc.MAV_CMD_DO_SET_MODE, 1, mc.Px4Mode.OFFBOARD) == mc.MAV_RESULT_ACCEPTED
+        assert h.command(mc.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mc.MAV_RESULT_ACCEPTED
+        for cmd, seconds in ((SpeedCommand(0.0, 0.0, 0.5), 2.0), (SpeedCommand(0.5), 3.0)):
+            for _ in range(int(seconds * 50)):
+                h.setpoint(cmd)
+                h.ap.poll(0.002)
+                h.ap.tick()
+                for m in h.comp.recv(0.002):
+                    link._handle(m, 0.0)
+                    kind = m.get_type()
+                    if kind == "ATTITUDE" and m.time_boot_ms in sent:
+                        imu, (roll_w, pitch_w, _) = sent[m.time_boot_ms]
+                        assert (m.roll, m.pitch, m.yaw) == pytest.approx((imu.roll_rad, -imu.pitch_rad, -imu.yaw_rad), abs=1e-6)
+                        assert (m.rollspeed, m.pitchspeed, m.yawspeed) == pytest.approx((imu.p_rad_s, -imu.q_rad_s, -imu.r_rad_s), abs=1e-6)
+                        errors.append(max(abs(m.roll - roll_w), abs(-m.pitch - pitch_w)))
+                    elif kind == "HIGHRES_IMU" and m.time_usec // 1000 in sent:
+                        imu = sent[m.time_usec // 1000][0]
+                        got = link.measurements().imu
+                        assert got.heading_accel() == pytest.approx(imu.heading_accel(), abs=1e-4)
+                        assert got.yaw_rad == pytest.approx(imu.yaw_rad, abs=1e-6)
+                        checked_imu += 1
+        assert len(errors) > 200 and checked_imu > 200
+        # The streamed attitude carries the estimate's error: sub-degree, and not zero.
+        assert 1e-3 < sum(errors) / len(errors) < 0.02
+    finally:
+        h.close()
+        link.ep.close()
+
+
 def test_ardupilot_needs_takeoff_in_guided_and_lands_on_command() -> None:
     h = Harness(mc.Autopilot.ARDUPILOT)
     try:
