@@ -13,10 +13,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from inspect_pipe.flight.scenario import FORMAT as SCENARIO_FORMAT  # noqa: E402
+from inspect_pipe.flight.scenario import ScenarioDoc  # noqa: E402
 from inspect_pipe.formats import FORMATS  # noqa: E402
 from inspect_pipe.ship import FORMAT, SurveyPlan  # noqa: E402
 
-SCHEMAS = {"survey_plan.schema.json": (SurveyPlan, FORMAT), **FORMATS}
+SCHEMAS = {"survey_plan.schema.json": (SurveyPlan, FORMAT), "scenario.schema.json": (ScenarioDoc, SCENARIO_FORMAT), **FORMATS}
 
 
 def render(model, fmt: str) -> str:

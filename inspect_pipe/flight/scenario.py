@@ -1,17 +1,22 @@
 """Scenario files (``inspect_pipe.scenario/1``, see SPEC.md): typed, frozen, validated on load.
 
-Every problem is an :class:`InputError` naming the file, the field and what is expected.
+The file's structure is declared once, with pydantic (``ScenarioDoc``); its JSON Schema is
+generated into docs/schema/. Every problem is an :class:`InputError` naming the file, the field
+and what is expected (read from the schema: type, range, allowed values).
 """
 
 from __future__ import annotations
 
 import enum
 import math
+import types
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic.fields import FieldInfo
 
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
@@ -25,6 +30,7 @@ __all__ = [
     "FaultKind",
     "Hold",
     "Scenario",
+    "ScenarioDoc",
     "SensorName",
     "StickEvent",
     "VEHICLE_RADIUS_M",
@@ -93,6 +99,7 @@ class WallTexture:
 
 
 WALLS = ("front", "back", "left", "right")  # the walls a scenario can texture (SPEC.md wall frames)
+WallName = Literal["front", "back", "left", "right"]
 
 
 @dataclass(frozen=True)
@@ -177,64 +184,272 @@ class Scenario:
         return max(1.0, min(self.world.hold.height_m - 1.0, 12.0))
 
 
-# --------------------------------------------------------------------------- parsing helpers
+# --------------------------------------------------------------------------- the document (pydantic)
+#
+# The file's structure, declared once: types, ranges, which fields a fault kind takes. Checks that
+# need more than one field of the file (a box inside the hold, the start spot free, an event
+# inside the flight) follow in ``_build``. ``tools/gen_schemas.py`` writes the JSON Schema of
+# ``ScenarioDoc`` to docs/schema/scenario.schema.json.
+
+Num = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Vec2 = tuple[Num, Num]
+Vec3 = tuple[Num, Num, Num]
 
 
-class _Reader:
-    def __init__(self, source: str, base: Path) -> None:
-        self.source = source
-        self.base = base
-
-    def fail(self, field: str, problem: str, expected: str = "") -> InputError:
-        return InputError(self.source, f"field '{field}': {problem}", f"expected {expected}" if expected else "")
-
-    def mapping(self, obj: Any, field: str, allowed: set[str], required: set[str]) -> dict:
-        if not isinstance(obj, dict):
-            raise self.fail(field or "<top>", f"is {type(obj).__name__}", "a mapping")
-        for key in obj:
-            if key not in allowed:
-                raise self.fail(_join(field, str(key)), "unknown field", "one of " + ", ".join(sorted(allowed)))
-        for key in sorted(required):
-            if key not in obj:
-                raise self.fail(_join(field, key), "missing", "it to be present")
-        return obj
-
-    def number(self, obj: Any, field: str, *, lo: float = -math.inf, hi: float = math.inf, positive: bool = False) -> float:
-        if isinstance(obj, bool) or not isinstance(obj, (int, float)) or not math.isfinite(obj):
-            raise self.fail(field, f"is {obj!r}", "a number")
-        if positive and obj <= 0:
-            raise self.fail(field, f"is {obj}", "a number > 0")
-        if not lo <= obj <= hi:
-            raise self.fail(field, f"is {obj}", f"a number in [{lo}, {hi}]")
-        return float(obj)
-
-    def integer(self, obj: Any, field: str, *, lo: int = 0) -> int:
-        if isinstance(obj, bool) or not isinstance(obj, int) or obj < lo:
-            raise self.fail(field, f"is {obj!r}", f"an integer >= {lo}")
-        return int(obj)
-
-    def vector(self, obj: Any, field: str, n: int) -> tuple[float, ...]:
-        if not isinstance(obj, (list, tuple)) or len(obj) != n:
-            raise self.fail(field, f"is {obj!r}", f"a list of {n} numbers")
-        return tuple(self.number(v, f"{field}[{i}]") for i, v in enumerate(obj))
-
-    def enum(self, obj: Any, field: str, kind: type[enum.Enum]):
-        values = [e.value for e in kind]  # type: ignore[attr-defined]
-        if obj not in values:
-            raise self.fail(field, f"unknown value {obj!r}", "one of " + ", ".join(values))
-        return kind(obj)
-
-    def path(self, obj: Any, field: str) -> Path:
-        if not isinstance(obj, str) or not obj:
-            raise self.fail(field, f"is {obj!r}", "a file path relative to the scenario file")
-        p = (self.base / obj).resolve()
-        if not p.is_file():
-            raise self.fail(field, f"file {obj} not found", "an existing image file")
-        return p
+def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, default: Any = ..., doc: str = ""):
+    return Field(default, strict=True, allow_inf_nan=False, ge=lo, le=hi, gt=gt, description=doc or None)
 
 
-def _join(a: str, b: str) -> str:
-    return f"{a}.{b}" if a else b
+class _Doc(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class HoldDoc(_Doc):
+    length_m: float = _num(2.0, 500.0, doc="along the ship (x, from the aft bulkhead)")
+    width_m: float = _num(2.0, 500.0, doc="across (y, centred)")
+    height_m: float = _num(2.0, 100.0, doc="tank top to hatch (z)")
+
+
+class BoxDoc(_Doc):
+    min: Vec3 = Field(description="lowest corner [x, y, z] in the hold frame (m)")
+    max: Vec3 = Field(description="highest corner [x, y, z] (m)")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxDoc:
+        if any(hi <= lo for lo, hi in zip(self.min, self.max)):
+            raise ValueError(f"min {list(self.min)} not below max {list(self.max)} (expected min < max on every axis)")
+        return self
+
+
+class TextureDoc(_Doc):
+    image: str = Field(min_length=1, description="image file, relative to the scenario file")
+    m_per_px: float = _num(gt=0.0)
+    origin_uv: Vec2 | None = Field(None, description="wall (u, v) of the image's top-left pixel (m); default [0, hold height]")
+    defects_mask: str | None = Field(None, description="label image of the defects (optional)")
+
+
+class WorldDoc(_Doc):
+    hold: HoldDoc
+    boxes: list[BoxDoc] | None = None
+    front_wall_texture: TextureDoc | None = Field(None, description="the same as wall_textures.front (older files)")
+    wall_textures: dict[WallName, TextureDoc] | None = None
+
+
+class StartDoc(_Doc):
+    position: Vec3 = Field(description="[x, y, z] in the hold frame (m); the vehicle starts landed")
+    yaw: float = _num(-2 * math.pi, 2 * math.pi, default=0.0)
+
+
+class BatteryDoc(_Doc):
+    start_percent: float = _num(0.0, 100.0, default=100.0)
+    drain_percent_per_min: float = _num(0.0, 100.0, default=4.0)
+
+
+class VehicleDoc(_Doc):
+    start: StartDoc
+    battery: BatteryDoc | None = None
+    max_height_m: float | None = _num(1.0, 14.0, default=None, doc="limit_max_height (also at most the hold's height)")
+    mass_scale: float = _num(0.5, 1.5, default=1.0, doc="true mass / nominal (model error the stack does not know)")
+    thrust_scale: float = _num(0.5, 1.5, default=1.0, doc="true maximum thrust / nominal")
+
+
+class CameraDoc(_Doc):
+    fps: float = _num(gt=0.0, hi=200.0, default=10.0)
+    width: int = Field(752, strict=True, ge=16)
+    height: int = Field(480, strict=True, ge=16)
+    hfov_deg: float = _num(5.0, 170.0, default=60.0)
+
+
+class StickDoc(_Doc):
+    vx: float = _num(-3.0, 3.0, default=0.0)
+    vy: float = _num(-3.0, 3.0, default=0.0)
+    vz: float = _num(-3.0, 3.0, default=0.0)
+    yaw_rate: float = _num(-3.0, 3.0, default=0.0)
+
+
+class OperatorDoc(_Doc):
+    t: float = _num(0.0, doc="seconds from the start (at most duration_s)")
+    stick: StickDoc | None = None
+    button: Button | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> OperatorDoc:
+        if (self.stick is None) == (self.button is None):
+            raise ValueError("needs exactly one of 'stick' or 'button' (expected {t, stick: {vx, vy, vz, yaw_rate}} or {t, button})")
+        return self
+
+
+class FaultDoc(_Doc):
+    t: float = _num(0.0)
+    duration_s: float = _num(gt=0.0)
+    fault: FaultKind
+    sensor: SensorName | None = Field(None, validate_default=True, description="for " + ", ".join(sorted(k.value for k in _NEEDS_SENSOR)))
+    rate: float | None = Field(None, strict=True, allow_inf_nan=False, ge=0.0, le=1.0, validate_default=True,
+                               description="probability or fraction, for " + ", ".join(sorted(k.value for k in _NEEDS_RATE)))
+    wind_m_s: Vec3 | None = Field(None, validate_default=True, description="gust: wind [wx, wy, wz] in the world frame, at most 10 m/s")
+
+    @field_validator("sensor", "rate", "wind_m_s", mode="after")
+    @classmethod
+    def _fields_of_kind(cls, value: Any, info: ValidationInfo) -> Any:
+        """Which fields a fault kind takes: a sensor, a rate, a wind vector."""
+        kind, name = info.data.get("fault"), info.field_name
+        if kind is None:  # the kind itself is invalid: that is the error reported
+            return value
+        needed, expected = {
+            "sensor": (kind in _NEEDS_SENSOR, "one of " + ", ".join(s.value for s in SensorName)),
+            "rate": (kind in _NEEDS_RATE, "a number in [0, 1]"),
+            "wind_m_s": (kind is FaultKind.GUST, "[wx, wy, wz] in m/s"),
+        }[name]
+        if needed and value is None:
+            raise ValueError(f"missing: {kind.value} needs it (expected {expected})")
+        if value is not None and not needed:
+            raise ValueError(f"{kind.value} takes no {name} (expected no '{name}' field)")
+        if name == "sensor" and value is not None:
+            if kind in (FaultKind.FLOW_QUALITY_ZERO, FaultKind.LOW_TEXTURE) and value not in (SensorName.BOTTOM_FLOW, SensorName.FRONT_FLOW):
+                raise ValueError(f"{value.value} has no flow (expected bottom_flow or front_flow)")
+            if kind is FaultKind.SPURIOUS_MAX_RANGE and value is SensorName.BOTTOM_TOF:
+                raise ValueError("the TeraRanger is not a sonar (expected bottom_flow, front_flow, left_sonar or right_sonar)")
+        if name == "wind_m_s" and value is not None and math.hypot(*value) > 10.0:
+            raise ValueError(f"{list(value)} is stronger than 10 m/s (expected a gust of at most 10 m/s)")
+        return value
+
+
+class ScenarioDoc(_Doc):
+    """A simulated flight: the hold, the vehicle, the surveyor's stick and buttons, the faults."""
+
+    format: Literal["inspect_pipe.scenario/1"]
+    name: str = Field(min_length=1)
+    duration_s: float = _num(hi=24 * 3600.0, gt=0.0)
+    seed: int = Field(0, strict=True, ge=0)
+    world: WorldDoc
+    vehicle: VehicleDoc
+    camera: CameraDoc | None = None
+    operator: list[OperatorDoc] | None = None
+    faults: list[FaultDoc] | None = None
+
+
+# --------------------------------------------------------------------------- errors from the schema
+
+
+def _schema_error(err: ValidationError) -> tuple[str, str, str]:
+    """The first problem as (field, problem, expected), the expectation read from the schema."""
+    e = err.errors(include_url=False)[0]
+    raw = [p for p in e["loc"] if isinstance(p, int) or not _is_branch(p)]
+    on_key = "[key]" in e["loc"]
+    field = _field_name(raw)
+    kind, value = e["type"], e.get("input")
+    if kind == "value_error":
+        return field, str(e["msg"]).removeprefix("Value error, "), ""
+    if kind == "missing" and raw and isinstance(raw[-1], int):  # a fixed-length list one short
+        field = _field_name(raw[:-1])
+        return field, "has too few numbers", _expected(*_schema_at(raw[:-1]))
+    if kind == "invalid_key":
+        return _field_name(raw[:-1]), f"key {_short(value)} is not a name", "field names as text"
+    if kind == "extra_forbidden":
+        parent, _ = _schema_at(raw[:-1])
+        names = sorted(parent.model_fields) if isinstance(parent, type) and issubclass(parent, BaseModel) else []
+        return field, "unknown field", "one of " + ", ".join(names) if names else ""
+    if kind == "missing":
+        return field, "missing", "it to be present"
+    tp, info = _schema_at(raw)
+    if on_key:
+        tp, info = get_args(_schema_at(raw[:-1])[0])[0], None
+        return field, f"{_short(raw[-1] if raw else value)} is not a wall", _expected(tp, None)
+    if kind in ("enum", "literal_error"):
+        return field, f"unknown value {_short(value)}", _expected(tp, info)
+    return field, f"is {_short(value)}", _expected(tp, info)
+
+
+def _is_branch(part: str) -> bool:
+    return "[" in part or part.startswith("function-") or part in {"float", "int", "str", "bool", "list", "dict", "tuple", "none"}
+
+
+def _field_name(loc: list) -> str:
+    out = ""
+    for p in loc:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
+
+
+def _unwrap(tp: Any) -> Any:
+    while True:
+        if get_origin(tp) is Annotated:
+            tp = get_args(tp)[0]
+        elif get_origin(tp) in (Union, types.UnionType):
+            args = [a for a in get_args(tp) if a is not type(None)]
+            tp = args[0] if len(args) == 1 else tp
+            if len(args) != 1:
+                return tp
+        else:
+            return tp
+
+
+def _schema_at(loc: list) -> tuple[Any, FieldInfo | None]:
+    """The declared type (and field) at ``loc`` of ScenarioDoc."""
+    tp: Any = ScenarioDoc
+    info: FieldInfo | None = None
+    for p in loc:
+        tp = _unwrap(tp)
+        origin = get_origin(tp)
+        if isinstance(tp, type) and issubclass(tp, BaseModel) and p in tp.model_fields:
+            info = tp.model_fields[p]
+            tp = info.annotation
+        elif origin is list:
+            tp, info = get_args(tp)[0], None
+        elif origin is dict:
+            tp, info = get_args(tp)[1], None
+        elif origin is tuple and isinstance(p, int):
+            args = get_args(tp)
+            tp, info = args[min(p, len(args) - 1)], None
+        else:
+            return None, None
+    return _unwrap(tp), info
+
+
+def _expected(tp: Any, info: FieldInfo | None) -> str:
+    origin = get_origin(tp)
+    if tp is float or tp is int:
+        lo = hi = None
+        lo_op = hi_op = ""
+        for m in (info.metadata if info else []):
+            for name, op in (("ge", ">="), ("gt", ">")):
+                if getattr(m, name, None) is not None:
+                    lo, lo_op = getattr(m, name), op
+            for name, op in (("le", "<="), ("lt", "<")):
+                if getattr(m, name, None) is not None:
+                    hi, hi_op = getattr(m, name), op
+        what = "a number" if tp is float else "an integer"
+        if lo is not None and hi is not None:
+            return f"{what} in {'[' if lo_op == '>=' else '('}{lo:g}, {hi:g}{']' if hi_op == '<=' else ')'}"
+        if lo is not None:
+            return f"{what} {lo_op} {lo:g}"
+        if hi is not None:
+            return f"{what} {hi_op} {hi:g}"
+        return what
+    if tp is str:
+        return "a non-empty string"
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return "one of " + ", ".join(str(e.value) for e in tp)
+    if origin is Literal:
+        args = get_args(tp)
+        return repr(args[0]) if len(args) == 1 else "one of " + ", ".join(str(a) for a in args)
+    if origin is tuple:
+        return f"a list of {len(get_args(tp))} numbers"
+    if origin is list:
+        return "a list"
+    if origin is dict:
+        return "a mapping {" + "|".join(get_args(_unwrap(get_args(tp)[0]))) + ": ...}"
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return "a mapping with " + ", ".join(tp.model_fields)
+    return "a valid value"
+
+
+def _short(v: Any, n: int = 40) -> str:
+    s = repr(v)
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+# --------------------------------------------------------------------------- reading
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -256,172 +471,94 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".")) -> Scenario:
-    r = _Reader(source, base)
-    top = r.mapping(
-        doc, "", {"format", "name", "duration_s", "seed", "world", "vehicle", "camera", "operator", "faults"},
-        {"format", "name", "duration_s", "world", "vehicle"},
-    )
-    if top["format"] != FORMAT:
-        raise r.fail("format", f"is {top['format']!r}", repr(FORMAT))
-    if not isinstance(top["name"], str) or not top["name"]:
-        raise r.fail("name", f"is {top['name']!r}", "a non-empty string")
-    duration = r.number(top["duration_s"], "duration_s", positive=True, hi=24 * 3600)
-    seed = r.integer(top.get("seed", 0), "seed")
+    """A scenario from a parsed document: the schema (``ScenarioDoc``) first, then the checks
+    that relate fields (boxes and start inside the hold, events inside the flight, files found)."""
+    if not isinstance(doc, dict):
+        raise InputError(source, f"is {type(doc).__name__}", "expected a mapping with " + ", ".join(ScenarioDoc.model_fields))
+    try:
+        d = ScenarioDoc.model_validate(doc)
+    except ValidationError as err:
+        field, problem, expected = _schema_error(err)
+        raise InputError(source, f"field '{field}': {problem}" if field else problem,
+                         f"expected {expected}" if expected else "") from None
+    return _build(d, _Checks(source, base))
 
-    w = r.mapping(top["world"], "world", {"hold", "boxes", "front_wall_texture", "wall_textures"}, {"hold"})
-    h = r.mapping(w["hold"], "world.hold", {"length_m", "width_m", "height_m"}, {"length_m", "width_m", "height_m"})
-    hold = Hold(
-        r.number(h["length_m"], "world.hold.length_m", lo=2.0, hi=500.0),
-        r.number(h["width_m"], "world.hold.width_m", lo=2.0, hi=500.0),
-        r.number(h["height_m"], "world.hold.height_m", lo=2.0, hi=100.0),
-    )
+
+class _Checks:
+    def __init__(self, source: str, base: Path) -> None:
+        self.source, self.base = source, base
+
+    def fail(self, field: str, problem: str, expected: str = "") -> InputError:
+        return InputError(self.source, f"field '{field}': {problem}", f"expected {expected}" if expected else "")
+
+    def path(self, name: str, field: str) -> Path:
+        p = (self.base / name).resolve()
+        if not p.is_file():
+            raise self.fail(field, f"file {name} not found", "an existing image file, relative to the scenario file")
+        return p
+
+
+def _build(d: ScenarioDoc, r: _Checks) -> Scenario:
+    hold = Hold(d.world.hold.length_m, d.world.hold.width_m, d.world.hold.height_m)
     boxes = []
-    raw_boxes = w.get("boxes") or []
-    if not isinstance(raw_boxes, list):
-        raise r.fail("world.boxes", f"is {type(raw_boxes).__name__}", "a list of {min: [x,y,z], max: [x,y,z]}")
-    for i, b in enumerate(raw_boxes):
-        f = f"world.boxes[{i}]"
-        b = r.mapping(b, f, {"min", "max"}, {"min", "max"})
-        lo, hi = r.vector(b["min"], f + ".min", 3), r.vector(b["max"], f + ".max", 3)
-        if any(hi[k] <= lo[k] for k in range(3)):
-            raise r.fail(f, f"min {list(lo)} not below max {list(hi)}", "min < max on every axis")
+    for i, b in enumerate(d.world.boxes or []):
+        lo, hi = b.min, b.max
         inside = (
             lo[0] >= 0 and hi[0] <= hold.length_m and lo[1] >= -hold.width_m / 2 and hi[1] <= hold.width_m / 2
             and lo[2] >= 0 and hi[2] <= hold.height_m
         )
         if not inside:
             raise r.fail(
-                f, f"box {list(lo)}..{list(hi)} is outside the hold",
+                f"world.boxes[{i}]", f"box {list(lo)}..{list(hi)} is outside the hold",
                 f"x in [0, {hold.length_m}], y in [{-hold.width_m / 2}, {hold.width_m / 2}], z in [0, {hold.height_m}]",
             )
-        boxes.append(Box(lo, hi))  # type: ignore[arg-type]
-    def texture(t, f: str) -> WallTexture:
-        t = r.mapping(t, f, {"image", "m_per_px", "origin_uv", "defects_mask"}, {"image", "m_per_px"})
+        boxes.append(Box(lo, hi))
+
+    def texture(t: TextureDoc, f: str) -> WallTexture:
         return WallTexture(
-            image=r.path(t["image"], f + ".image"),
-            m_per_px=r.number(t["m_per_px"], f + ".m_per_px", positive=True),
-            origin_uv=r.vector(t.get("origin_uv", [0.0, hold.height_m]), f + ".origin_uv", 2),  # type: ignore[arg-type]
-            defects_mask=r.path(t["defects_mask"], f + ".defects_mask") if t.get("defects_mask") else None,
+            image=r.path(t.image, f + ".image"), m_per_px=t.m_per_px,
+            origin_uv=t.origin_uv if t.origin_uv is not None else (0.0, hold.height_m),
+            defects_mask=r.path(t.defects_mask, f + ".defects_mask") if t.defects_mask else None,
         )
 
-    textures: dict[str, WallTexture] = {}
-    if w.get("wall_textures") is not None:
-        wt = w["wall_textures"]
-        if not isinstance(wt, dict):
-            raise r.fail("world.wall_textures", f"is {type(wt).__name__}", "a mapping {front|back|left|right: {image, m_per_px, ...}}")
-        for name, t in wt.items():
-            if name not in WALLS:
-                raise r.fail(f"world.wall_textures.{name}", "is not a wall", "one of " + ", ".join(WALLS))
-            textures[name] = texture(t, f"world.wall_textures.{name}")
-    if w.get("front_wall_texture") is not None:
+    textures = {name: texture(t, f"world.wall_textures.{name}") for name, t in (d.world.wall_textures or {}).items()}
+    if d.world.front_wall_texture is not None:
         if "front" in textures:
             raise r.fail("world.front_wall_texture", "also given as world.wall_textures.front", "give it once")
-        textures["front"] = texture(w["front_wall_texture"], "world.front_wall_texture")
+        textures["front"] = texture(d.world.front_wall_texture, "world.front_wall_texture")
     world = World(hold, tuple(boxes), tuple(sorted(textures.items())))
 
-    v = r.mapping(top["vehicle"], "vehicle", {"start", "battery", "max_height_m", "mass_scale", "thrust_scale"}, {"start"})
-    s = r.mapping(v["start"], "vehicle.start", {"position", "yaw"}, {"position"})
-    pos = r.vector(s["position"], "vehicle.start.position", 3)
-    yaw = r.number(s.get("yaw", 0.0), "vehicle.start.yaw", lo=-2 * math.pi, hi=2 * math.pi)
-    _check_start(r, world, pos)
-    bat = r.mapping(v.get("battery", {}), "vehicle.battery", {"start_percent", "drain_percent_per_min"}, set())
-    battery = Battery(
-        r.number(bat.get("start_percent", 100.0), "vehicle.battery.start_percent", lo=0.0, hi=100.0),
-        r.number(bat.get("drain_percent_per_min", 4.0), "vehicle.battery.drain_percent_per_min", lo=0.0, hi=100.0),
-    )
-    max_h = None
-    if v.get("max_height_m") is not None:
-        max_h = r.number(v["max_height_m"], "vehicle.max_height_m", lo=1.0, hi=min(14.0, hold.height_m))
+    v = d.vehicle
+    _check_start(r, world, v.start.position)
+    bat = v.battery or BatteryDoc()
+    if v.max_height_m is not None and v.max_height_m > hold.height_m:
+        raise r.fail("vehicle.max_height_m", f"is {v.max_height_m}", f"at most the hold's height {hold.height_m}")
     vehicle = VehicleSpec(
-        pos, yaw, battery, max_h,  # type: ignore[arg-type]
-        mass_scale=r.number(v.get("mass_scale", 1.0), "vehicle.mass_scale", lo=0.5, hi=1.5),
-        thrust_scale=r.number(v.get("thrust_scale", 1.0), "vehicle.thrust_scale", lo=0.5, hi=1.5),
+        v.start.position, v.start.yaw, Battery(bat.start_percent, bat.drain_percent_per_min), v.max_height_m,
+        mass_scale=v.mass_scale, thrust_scale=v.thrust_scale,
     )
-
-    camera = Camera()
-    if top.get("camera") is not None:
-        c = r.mapping(top["camera"], "camera", {"fps", "width", "height", "hfov_deg"}, set())
-        camera = Camera(
-            r.number(c.get("fps", 10.0), "camera.fps", positive=True, hi=200.0),
-            r.integer(c.get("width", 752), "camera.width", lo=16),
-            r.integer(c.get("height", 480), "camera.height", lo=16),
-            r.number(c.get("hfov_deg", 60.0), "camera.hfov_deg", lo=5.0, hi=170.0),
-        )
+    c = d.camera or CameraDoc()
+    camera = Camera(c.fps, c.width, c.height, c.hfov_deg)
 
     events: list[StickEvent | ButtonEvent] = []
-    raw_ops = top.get("operator") or []
-    if not isinstance(raw_ops, list):
-        raise r.fail("operator", f"is {type(raw_ops).__name__}", "a list of {t, stick} or {t, button} events")
-    for i, e in enumerate(raw_ops):
-        f = f"operator[{i}]"
-        e = r.mapping(e, f, {"t", "stick", "button"}, {"t"})
-        t = r.number(e["t"], f + ".t", lo=0.0, hi=duration)
-        if ("stick" in e) == ("button" in e):
-            raise r.fail(f, "needs exactly one of 'stick' or 'button'", "{t, stick: {vx, vy, vz, yaw_rate}} or {t, button}")
-        if "button" in e:
-            events.append(ButtonEvent(t, r.enum(e["button"], f + ".button", Button)))
+    for i, e in enumerate(d.operator or []):
+        if e.t > d.duration_s:
+            raise r.fail(f"operator[{i}].t", f"is {e.t}", f"a time within the flight's duration_s {d.duration_s:g}")
+        if e.button is not None:
+            events.append(ButtonEvent(e.t, e.button))
         else:
-            st = r.mapping(e["stick"], f + ".stick", {"vx", "vy", "vz", "yaw_rate"}, set())
-            events.append(
-                StickEvent(
-                    t,
-                    SpeedCommand(
-                        r.number(st.get("vx", 0.0), f + ".stick.vx", lo=-3, hi=3),
-                        r.number(st.get("vy", 0.0), f + ".stick.vy", lo=-3, hi=3),
-                        r.number(st.get("vz", 0.0), f + ".stick.vz", lo=-3, hi=3),
-                        r.number(st.get("yaw_rate", 0.0), f + ".stick.yaw_rate", lo=-3, hi=3),
-                    ),
-                )
-            )
+            st = e.stick
+            events.append(StickEvent(e.t, SpeedCommand(st.vx, st.vy, st.vz, st.yaw_rate)))
     if any(b.t_s < a.t_s for a, b in zip(events, events[1:])):
         raise r.fail("operator", "events are not in time order", "non-decreasing t")
-
-    faults = []
-    raw_faults = top.get("faults") or []
-    if not isinstance(raw_faults, list):
-        raise r.fail("faults", f"is {type(raw_faults).__name__}", "a list of {t, duration_s, fault[, sensor]}")
-    for i, fl in enumerate(raw_faults):
-        f = f"faults[{i}]"
-        fl = r.mapping(fl, f, {"t", "duration_s", "fault", "sensor", "rate", "wind_m_s"}, {"t", "duration_s", "fault"})
-        kind = r.enum(fl["fault"], f + ".fault", FaultKind)
-        sensor = rate = wind = None
-        if kind in _NEEDS_SENSOR:
-            if "sensor" not in fl:
-                raise r.fail(f + ".sensor", "missing", "one of " + ", ".join(s.value for s in SensorName))
-            sensor = r.enum(fl["sensor"], f + ".sensor", SensorName)
-            if kind in (FaultKind.FLOW_QUALITY_ZERO, FaultKind.LOW_TEXTURE) and sensor not in (SensorName.BOTTOM_FLOW, SensorName.FRONT_FLOW):
-                raise r.fail(f + ".sensor", f"{sensor.value} has no flow", "bottom_flow or front_flow")
-            if kind is FaultKind.SPURIOUS_MAX_RANGE and sensor is SensorName.BOTTOM_TOF:
-                raise r.fail(f + ".sensor", "the TeraRanger is not a sonar", "a sonar: bottom_flow, front_flow, left_sonar, right_sonar")
-        elif "sensor" in fl:
-            raise r.fail(f + ".sensor", f"{kind.value} names no sensor", "no 'sensor' field")
-        if kind in _NEEDS_RATE:
-            if "rate" not in fl:
-                raise r.fail(f + ".rate", "missing", "a number in [0, 1]")
-            rate = r.number(fl["rate"], f + ".rate", lo=0.0, hi=1.0)
-        elif "rate" in fl:
-            raise r.fail(f + ".rate", f"{kind.value} takes no rate", "no 'rate' field")
-        if kind is FaultKind.GUST:
-            if "wind_m_s" not in fl:
-                raise r.fail(f + ".wind_m_s", "missing", "[wx, wy, wz] in m/s")
-            wind = r.vector(fl["wind_m_s"], f + ".wind_m_s", 3)
-            if math.hypot(*wind) > 10.0:
-                raise r.fail(f + ".wind_m_s", f"{list(wind)} is stronger than 10 m/s", "a gust of at most 10 m/s")
-        elif "wind_m_s" in fl:
-            raise r.fail(f + ".wind_m_s", f"{kind.value} takes no wind", "no 'wind_m_s' field")
-        faults.append(
-            Fault(
-                r.number(fl["t"], f + ".t", lo=0.0), r.number(fl["duration_s"], f + ".duration_s", positive=True),
-                kind, sensor, rate, wind,  # type: ignore[arg-type]
-            )
-        )
+    faults = tuple(Fault(f.t, f.duration_s, f.fault, f.sensor, f.rate, f.wind_m_s) for f in d.faults or [])
     return Scenario(
-        name=top["name"], duration_s=duration, seed=seed, world=world, vehicle=vehicle, camera=camera,
-        operator=tuple(events), faults=tuple(faults), source=Path(source) if source else None,
+        name=d.name, duration_s=d.duration_s, seed=d.seed, world=world, vehicle=vehicle, camera=camera,
+        operator=tuple(events), faults=faults, source=Path(r.source) if r.source else None,
     )
 
 
-def _check_start(r: _Reader, world: World, pos: tuple[float, ...]) -> None:
+def _check_start(r: _Checks, world: World, pos: tuple[float, ...]) -> None:
     hold, rad = world.hold, VEHICLE_RADIUS_M
     x, y, z = pos
     f = "vehicle.start.position"

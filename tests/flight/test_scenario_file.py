@@ -76,6 +76,12 @@ def _mutate(path, value):
         (("faults", 0, "sensor"), "camera", "faults[0].sensor", "bottom_flow"),
         (("faults", 0, "fault"), "explode", "faults[0].fault", "sensor_dropout"),
         (("format",), "inspect_pipe.scenario/2", "format", "inspect_pipe.scenario/1"),
+        # the expectation is read from the schema (ScenarioDoc): type, range, allowed values
+        (("world", "hold", "width_m"), 1, "world.hold.width_m", "a number in [2, 500]"),
+        (("seed",), 1.5, "seed", "an integer >= 0"),
+        (("faults", 1, "rate"), 0.3, "faults[1].rate", "link_loss takes no rate"),
+        (("world", "wall_textures"), {"top": {"image": "x.png", "m_per_px": 0.01}}, "world.wall_textures.top", "one of front, back, left, right"),
+        (("operator", 1, "t"), 11.0, "operator[1].t", "within the flight's duration_s 10"),
     ],
 )
 def test_bad_scenario_names_file_field_and_expectation(tmp_path, path, value, field, expected):

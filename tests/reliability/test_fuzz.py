@@ -45,7 +45,7 @@ def _flip_in_member(data: bytes, member_index: int = 0) -> bytes:
     # crashes found by the fuzzer, one example per class, now one line
     ("scenario", b"format: inspect_pipe.scenario/1\nname: \x8a\n", "not UTF-8 text"),
     # a key with a newline in it, echoed in the message: the InputError escapes it (one line)
-    ("scenario", b'format: inspect_pipe.scenario/1\nname: f\nduration_s: 8\nworld: {}\nvehicle: {}\n"a\\nb": 1\n', "field 'a\\nb'"),
+    ("scenario", b'format: inspect_pipe.scenario/1\nname: f\nduration_s: 8\nworld: {hold: {length_m: 9, width_m: 9, height_m: 9, "a\\nb": 1}}\nvehicle: {}\n', "field 'world.hold.a\\nb'"),
     ("survey_plan", dump_yaml(dict(plan_doc(), **{"x\ny\x1b": 1})), "field 'x\\ny\\x1b': unknown key"),
     ("model .npz", b"", "not a defect model file"),  # np.load: EOFError
     ("model .npz", b"PK\x03\x04" + b"\x00" * 40, "not a defect model file"),  # BadZipFile
