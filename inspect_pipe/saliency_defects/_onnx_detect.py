@@ -11,13 +11,13 @@ full-resolution maps) and are up-sampled here: the class probabilities and, for 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ._core import TILE_PX, decide_u8, tiles, to_u8
+from ._core import TILE_PX, calibration_lut, decide_u8, tiles, to_u8
 from ._detect import SEVERITY_STATES, Detection, Region, regions_of
 from ._features import check_image
 
@@ -59,6 +59,10 @@ class OnnxModel:
     severity_output: str | None = None
     #: Added to the condition-state logits before the arg-max (chosen on the validation images).
     severity_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Per class, the calibration of its probability map (``_core.calibration_lut``, fitted on the
+    #: validation images; metadata ``calibration``): the maps this engine returns are calibrated,
+    #: and that class's threshold is 128.
+    calibration_luts: dict = field(default_factory=dict)
 
     @property
     def version(self) -> str:
@@ -124,9 +128,18 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
         bias = sev.get("logit_bias", bias)
         if not isinstance(bias, (list, tuple)) or len(bias) != 3 or not all(isinstance(b, (int, float)) for b in bias):
             raise ValueError("ONNX model metadata: severity logit_bias must be 3 numbers")
-    return OnnxModel(path, sess, meta, classes, {k: int(v) for k, v in ops.items()},
+    thresholds = {k: int(v) for k, v in ops.items()}
+    luts = {}
+    for k, c in (meta.get("calibration") or {}).items():
+        ok = (k in classes and isinstance(c, dict) and isinstance(c.get("gain"), (int, float)) and 0.1 <= c["gain"] <= 100
+              and c.get("operating_point_u8") == thresholds.get(k))
+        if not ok:
+            raise ValueError(f"ONNX model metadata: calibration of {k!r} must give a gain in [0.1, 100] at the class's operating point")
+        luts[k] = calibration_lut(thresholds[k], float(c["gain"]))
+        thresholds[k] = int(luts[k][thresholds[k]])
+    return OnnxModel(path, sess, meta, classes, thresholds,
                      {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes},
-                     sev.get("output") if sev is not None else None, tuple(float(b) for b in bias))
+                     sev.get("output") if sev is not None else None, tuple(float(b) for b in bias), luts)
 
 
 def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
@@ -232,7 +245,7 @@ def onnx_maps(
     s = _stride(model)
     if h * w <= whole_max_px:
         p, z = _run(model, _prepare(image, model.meta)[None], severity=sev)
-        return {k: _full_u8(p[0, i], s, h, w) for i, k in want}, \
+        return _calibrated({k: _full_u8(p[0, i], s, h, w) for i, k in want}, model), \
             (_full_states(z[0], s, h, w, model.severity_bias) if sev else None)
     out = {k: np.zeros((h, w), np.uint8) for _, k in want}
     states = np.zeros((h, w), np.uint8) if sev else None
@@ -243,7 +256,14 @@ def onnx_maps(
             out[k][y0:y1, x0:x1] = _full_u8(p[0, i], s, ty1 - ty0, tx1 - tx0)[core]
         if sev:
             states[y0:y1, x0:x1] = _full_states(z[0], s, ty1 - ty0, tx1 - tx0, model.severity_bias)[core]
-    return out, states
+    return _calibrated(out, model), states
+
+
+def _calibrated(maps: dict[str, np.ndarray], model: OnnxModel) -> dict[str, np.ndarray]:
+    for k, lut in model.calibration_luts.items():
+        if k in maps:
+            maps[k] = cv2.LUT(maps[k], lut)
+    return maps
 
 
 def onnx_probabilities_u8(image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX,

@@ -845,6 +845,73 @@ def set_severity_bias(path: Path, root: Path | None = None, *, val=None, log: Ca
     return r
 
 
+# ----------------------------------------------------------------------------- map calibration
+
+#: Gains of the probability-map calibration searched on the validation images (``_core.calibration_lut``).
+CALIBRATION_GAINS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Classes whose map is scored as a map (the salient-object protocol's MAE), so calibrated. The
+#: corrosion and crack maps are left as trained: the register's confidence rules read them.
+CALIBRATED_CLASSES = ("surface",)
+
+
+def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_fbeta_loss: float = 0.002) -> dict | None:
+    """The calibration gain of class ``cls``'s map chosen on the validation ``items``: the lowest
+    mean absolute error (against the 0/1 labels) among the gains whose max F-beta (salient-object
+    protocol) stays within ``max_fbeta_loss`` of the uncalibrated map's. None when the
+    uncalibrated map is best."""
+    import dataclasses
+
+    from ._core import calibration_lut
+    from ._metrics import max_fbeta, saliency_curves
+    from ._onnx_detect import load_onnx_model, onnx_maps
+
+    m = dataclasses.replace(load_onnx_model(path), calibration_luts={})
+    t = int(m.meta["operating_points_u8"][cls])
+    raw = [(onnx_maps(np.ascontiguousarray(it.rgb[:, :, ::-1]), m, kinds=(cls,))[0][cls], it.gt) for it in items]
+
+    def score(lut):
+        maps = [(lut[p] if lut is not None else p, g) for p, g in raw]
+        mae = float(np.mean([np.abs(p.astype(np.float32) / 255 - g).mean() for p, g in maps]))
+        curves = [saliency_curves(p, g)[:2] for p, g in maps]
+        return mae, max_fbeta([c[0] for c in curves], [c[1] for c in curves])
+
+    mae0, f0 = score(None)
+    tried = {"uncalibrated": [round(mae0, 4), round(f0, 4)]}
+    best = None
+    for g in CALIBRATION_GAINS:
+        mae, f = score(calibration_lut(t, g))
+        tried[f"gain {g:g}"] = [round(mae, 4), round(f, 4)]
+        if f >= f0 - max_fbeta_loss and mae < mae0 and (best is None or mae < best[1]):
+            best = (g, mae, f)
+    if best is None:
+        return None
+    return {"operating_point_u8": t, "gain": best[0], "validation": {
+        "images": len(items), "MAE": round(best[1], 4), "max_Fbeta": round(best[2], 4), "MAE_uncalibrated": round(mae0, 4),
+        "max_Fbeta_uncalibrated": round(f0, 4), "tried (MAE, max F-beta)": tried,
+        "rule": f"lowest MAE with max F-beta within {max_fbeta_loss} of the uncalibrated map's"}}
+
+
+def set_map_calibration(path: Path, val: dict[str, list[_Item]], *, classes=CALIBRATED_CLASSES,
+                        log: Callable[[str], None] = print) -> dict:
+    """Fit :func:`fit_map_calibration` for ``classes`` and store it in the model's metadata (after
+    the operating points are final: quantisation re-chooses them and drops the calibration)."""
+    meta = _read_meta(path)
+    cal = {}
+    for c in classes:
+        if c in meta["classes"] and val.get(c):
+            r = fit_map_calibration(path, val[c], c)
+            if r is not None:
+                cal[c] = r
+                v = r["validation"]
+                log(f"{c} map calibration: gain {r['gain']:g} at {r['operating_point_u8']}/255: validation MAE "
+                    f"{v['MAE_uncalibrated']:.4f} -> {v['MAE']:.4f}, max F-beta {v['max_Fbeta_uncalibrated']:.4f} -> {v['max_Fbeta']:.4f}")
+    meta.pop("calibration", None)
+    if cal:
+        meta["calibration"] = cal
+    _rewrite_meta(path, meta)
+    return cal
+
+
 # ----------------------------------------------------------------------------- int8 quantisation
 
 
@@ -897,6 +964,7 @@ def quantize_onnx(src: Path, dst: Path, root: Path, *, n_per_class: int = 8,
          "activations": "uint8", "calibration": f"first {n_per_class} training-part images of each set by name",
          "validation": v, "validation_float": meta["metrics"]["validation"]}
     meta["operating_points_u8"] = {c: r["threshold_u8"] for c, r in v.items()}
+    meta.pop("calibration", None)  # fitted at the float network's operating points: fitted again after
     meta["quantisation"] = q
     if "severity" in meta:
         meta["severity"]["validation"] = v.get("corrosion", {}).get("severity")
@@ -929,3 +997,4 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "2", int8:
     set_severity_bias(flt, val=val, log=log)
     if int8:
         quantize_onnx(flt, out, root, log=log)
+    set_map_calibration(out, val, log=log)

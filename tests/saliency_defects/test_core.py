@@ -66,3 +66,21 @@ def test_one_definition_used_by_every_engine():
     assert _engines.DetectorEngine.detect.__kwdefaults__["tile_px"] == _core.TILE_PX
     lo, hi = OPERATING_RANGE_U8
     assert 0 < lo < 128 < hi < 255
+
+
+@pytest.mark.parametrize("gain", [1.0, 2.0, 6.0, 8.0])
+def test_map_calibration_keeps_every_decision_and_sharpens_the_map(gain):
+    # GIVEN every operating point the validation may choose, and a calibration gain
+    levels = np.arange(256, dtype=np.uint8)
+    for t in range(OPERATING_RANGE_U8[0], OPERATING_RANGE_U8[1] + 1):
+        lut = _core.calibration_lut(t, gain)
+        # THEN the map stays monotone, and a pixel is at or above 128 exactly when it was at or above t
+        assert np.all(np.diff(lut.astype(int)) >= 0)
+        assert np.array_equal(lut[levels] >= 128, levels >= t), t
+    # AND the logit around the operating point is scaled by the gain (a sharper map for a gain above 1)
+    t = 200
+    lut = _core.calibration_lut(t, gain)
+    logit = lambda p: np.log(p / (1 - p))  # noqa: E731
+    for i in (150, 185, 215, 230):
+        if 3 <= lut[i] <= 252:
+            assert logit(lut[i] / 255) == pytest.approx(gain * (logit(i / 255) - logit(t / 255)), abs=0.03 * gain + 0.02), i

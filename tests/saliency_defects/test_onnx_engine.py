@@ -248,7 +248,8 @@ def _bad_models(tmp_path) -> dict[str, Path]:
     for name, old, new in (("format", b'"inspect_pipe.defect_onnx/1"', b'"inspect_pipe.defect_onnx/9"'),
                            ("channels", b'"channels": "RGB"', b'"channels": "BGR"'),
                            ("nometa", b"\x0a\x0cinspect_pipe", b"\x0a\x0cinspect_pipX"),
-                           ("states", b'"states": ["fair", "poor", "severe"]', b'"states": ["fair", "poor", "severX"]')):
+                           ("states", b'"states": ["fair", "poor", "severe"]', b'"states": ["fair", "poor", "severX"]'),
+                           ("calibration", b'"gain": 6.0', b'"gain": 0.0')):
         assert raw.count(old) == 1, name
         out[name] = tmp_path / f"{name}.onnx"
         out[name].write_bytes(raw.replace(old, new))
@@ -258,6 +259,7 @@ def _bad_models(tmp_path) -> dict[str, Path]:
 @pytest.mark.parametrize("case,words", [
     ("missing", "not found"), ("corrupt", "not a valid ONNX"), ("format", "format"),
     ("channels", "RGB"), ("nometa", "no 'inspect_pipe' metadata"), ("states", "severity states"),
+    ("calibration", "calibration of 'surface'"),
 ])
 def test_bad_model_exits_2_with_one_line_and_saliency_still_works(tmp_path, monkeypatch, case, words):
     bad = _bad_models(tmp_path)[case]
@@ -283,3 +285,20 @@ def test_cli_image_too_small_exits_2_and_others_are_written(tmp_path):
     assert len(lines) == 2 and "b_tiny.png" in lines[0] and "too small" in lines[0]
     assert "1 of 2 images failed" in lines[-1]
     assert (tmp_path / "out" / "a.prob.png").exists()
+
+
+def test_calibrated_surface_map_keeps_the_decision_and_is_sharper(sev_model):
+    # GIVEN the v2 network, whose surface map is calibrated (gain chosen on the validation images)
+    import dataclasses
+
+    cal = sev_model.meta["calibration"]["surface"]
+    assert sev_model.thresholds_u8["surface"] == 128 and cal["validation"]["MAE"] < cal["validation"]["MAE_uncalibrated"]
+    raw_model = dataclasses.replace(sev_model, calibration_luts={})
+    img, _ = _fixture("crackforest_004.jpg", "crackforest_004.mask.png")
+    # WHEN the surface map is computed with and without the calibration
+    cal_map = od.onnx_probabilities_u8(img, sev_model, kinds=("surface",))["surface"]
+    raw_map = od.onnx_probabilities_u8(img, raw_model, kinds=("surface",))["surface"]
+    # THEN the decision at the operating point is the same pixel for pixel, and the calibrated map lies nearer 0/1
+    assert np.array_equal(cal_map >= 128, raw_map >= cal["operating_point_u8"])
+    dist = lambda m: float(np.minimum(m, 255 - m.astype(int)).mean())  # noqa: E731
+    assert dist(cal_map) < dist(raw_map)
