@@ -58,23 +58,29 @@ ImageFormat = choices("ImageFormat", ("png", "jpg"))
 
 
 class _LiveLine:
-    """One live status line (rich.live) on a terminal; nothing otherwise or under -q."""
+    """One live status line (rich.live) on a terminal; nothing otherwise or under -q. With the live
+    mosaic, a second line: coverage, gaps, how far behind, a stalled stream. The line is redrawn
+    4 times a second from the last progress and the mosaic's status, so a stream that stops shows."""
 
-    def __init__(self) -> None:
+    def __init__(self, feed=None) -> None:
         self.live = None
+        self.feed = feed
+        self.text = "starting capture"
         if progress_enabled():
             from rich.live import Live
             from rich.text import Text
 
             self._text = Text
-            self.live = Live(Text("starting capture"), console=console, refresh_per_second=4, transient=True)  # the summary line replaces it
+            # the summary line replaces it
+            self.live = Live(console=console, refresh_per_second=4, transient=True, get_renderable=self._render)
             self.live.start()
 
+    def _render(self):
+        return self._text(self.text + ("\n" + self.feed.status().line() if self.feed is not None else ""))
+
     def __call__(self, p: Progress) -> None:
-        if self.live is not None:
-            self.live.update(self._text(
-                f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
-                f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}" + (f"  no vehicle state {p.no_state}" if p.no_state else "")))
+        self.text = (f"{p.frames} frames  {p.elapsed_s:6.1f} s  {p.rate_hz:5.2f} Hz  drops {p.drops}  "
+                     f"{p.bytes_written / 2**20:7.1f} MiB  queue {p.queued}" + (f"  no vehicle state {p.no_state}" if p.no_state else ""))
 
     def close(self) -> None:
         if self.live is not None:
@@ -100,6 +106,7 @@ def capture(
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="vehicle state for every frame: mavlink:URL (a PX4/ArduPilot autopilot; e.g. mavlink:udp:0.0.0.0:14550) or sim:SCENARIO.yaml; interpolated at mid-exposure")] = None,
     camera: Annotated[Optional[Path], typer.Option("--camera", help="camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info); default: the source's own model (a 60 deg guess for real cameras)")] = None,
     survey_plan: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " Stored in the sweep.")] = None,
+    live_mosaic: Annotated[bool, typer.Option("--live-mosaic/--no-live-mosaic", help="place each frame on a low-resolution live mosaic beside the writer and show its coverage and gaps on the live line")] = True,
 ) -> None:
     if not (0 < rate <= 200):
         raise fail(f"--rate {rate}: must be in (0, 200] Hz")
@@ -133,13 +140,20 @@ def capture(
                         survey_plan=None if plan is None else plan.to_json(), camera=cam)
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    live = _LiveLine()
+    mosaic = None
+    if live_mosaic:
+        from inspect_pipe.mosaic import LiveFeed
+
+        mosaic = LiveFeed(clock=clock.now)  # the stream's clock: simulated time for sim:
+    live = _LiveLine(mosaic)
     try:
-        res = run_capture(src, out, clock=clock, config=cfg, on_progress=live, stop=stop, state_feed=feed, sweep_extra=extra)
+        res = run_capture(src, out, clock=clock, config=cfg, on_progress=live, stop=stop, state_feed=feed, sweep_extra=extra,
+                          on_frame=None if mosaic is None else mosaic.tap(block=cfg.wait_for_writer))
     except KeyboardInterrupt:  # pragma: no cover - run_capture handles it; belt and braces
         res = None
     finally:
         live.close()
+        final = mosaic.close() if mosaic is not None else None
         signal.signal(signal.SIGTERM, old)
         if feed is not None:
             feed.close()
@@ -156,6 +170,8 @@ def capture(
         f"interval jitter p99 {jit:.2f} ms; {res.bytes_written / 2**20:.1f} MiB"
         + (f"; {res.frames_without_state} frames without vehicle state (link down or late)" if feed is not None else "")
     )
+    if final is not None:
+        typer.echo(f"{final.line()}; {final.p95_cpu_ms:.0f} ms CPU a frame (p95)")
     problems = getattr(src, "problems", ())
     if problems:
         raise fail(str(problems[0]))

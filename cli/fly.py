@@ -34,7 +34,7 @@ Autopilot = choices("Autopilot", ("px4", "ardupilot"))  # inspect_pipe.flight.ma
 def fly(
     scenario: Annotated[Path, typer.Option("--scenario", help="scenario file (YAML or JSON)")],
     log: Annotated[Path, typer.Option("--log", help="flight log to write (JSONL)")],
-    sweep: Annotated[Optional[Path], typer.Option("--sweep", help="also write the camera's sweep (directory)")] = None,
+    sweep: Annotated[Optional[Path], typer.Option("--sweep", help="also write the camera's sweep (directory), each frame placed on a live mosaic as it is written (its coverage and gaps are printed)")] = None,
     mavlink_sim: Annotated[Optional[str], typer.Option("--mavlink-sim", help="expose the simulator as a MAVLink vehicle on URL (udp:HOST:PORT listens), in real time")] = None,
     autopilot: Annotated[Autopilot, typer.Option("--autopilot", help="with --mavlink-sim: px4 (offboard) or ardupilot (guided)")] = Autopilot.px4,
     vehicle: Annotated[Optional[str], typer.Option("--vehicle", help="mavlink:URL: fly a real autopilot with the scenario's operator script")] = None,
@@ -97,8 +97,15 @@ def fly(
     if recorder is not None and sweep is not None:
         from inspect_pipe.capture.sources.sim import capture_flight
 
-        cap = capture_flight(sc, recorder.feed, sweep)
+        from inspect_pipe.mosaic import LiveFeed
+
+        live = LiveFeed()
+        try:
+            cap = capture_flight(sc, recorder.feed, sweep, live=live)
+        finally:
+            final = live.close()
         typer.echo(f"sweep {sweep}: {cap.frames_written} frames at {sc.camera.fps:g} Hz ({cap.reason.value})")
+        typer.echo(final.line())
         if cap.writer_error:
             raise InputError(str(sweep), cap.writer_error)
     if result.status is ExitStatus.COLLISION:

@@ -161,9 +161,14 @@ def run_capture(
     progress_every_s: float = 1.0,
     stop: threading.Event | None = None,
     writer_factory: Callable[..., SweepWriter] = SweepWriter,
+    on_frame: Callable[[np.ndarray, dict, CameraModel], None] | None = None,
 ) -> CaptureResult:
     """Capture from ``source`` into ``sweep_dir`` until the duration, frame count, end of source,
-    a lost camera, a write failure or ``stop``. The sweep is readable whatever the reason."""
+    a lost camera, a write failure or ``stop``. The sweep is readable whatever the reason.
+
+    ``on_frame(image, record, camera)`` sees each frame the writer accepted (its
+    frames.jsonl record and the sweep's camera model): the live mosaic's tap
+    (``inspect_pipe.mosaic.LiveFeed.tap``). It must not block: it runs in the grabbing loop."""
     info = source.open()
     try:
         if config.camera is not None:  # checked against the frame size before anything is written
@@ -275,7 +280,9 @@ def run_capture(
                              datetime_utc=utc, exposure_s=g.exposure_s, width=w, height=h, xmp=xmp)
             if config.wait_for_writer:
                 writer.wait_for_room()
-            writer.submit(grabbed, g.image, record, meta)
+            written = writer.submit(grabbed, g.image, record, meta)
+            if on_frame is not None and written:
+                on_frame(g.image, record, info.camera)
             grabbed += 1
             if writer.error is not None:
                 reason, detail = StopReason.WRITER_FAILED, writer.error

@@ -10,6 +10,7 @@ from ._features import DETECTORS, detect_features
 from ._homography import MatchParams, match_pair
 from ._io import FolderSource, read_image
 from ._live import LiveMosaic, LiveParams, Placement
+from ._live_feed import LiveFeed, LiveStatus
 from ._mosaic import FORMAT, MosaicOutput, MosaicParams, run_mosaic, run_mosaic_sweep
 from ._folder_input import UndistortedFolderSource, run_mosaic_folder
 from ._sweep_input import SweepSource, WallGeometry, is_sweep, wall_geometry
@@ -17,7 +18,7 @@ from ._register import FrameError, FrameSource, Group, Registration, RegisterPar
 
 __all__ = [
     "AlignParams", "BlendParams", "DETECTORS", "FORMAT", "FolderSource", "FrameError", "FrameSource",
-    "Group", "LiveMosaic", "LiveParams", "MatchParams", "MosaicOutput", "MosaicParams", "Placement", "Registration", "RegisterParams",
+    "Group", "LiveFeed", "LiveMosaic", "LiveParams", "LiveStatus", "MatchParams", "MosaicOutput", "MosaicParams", "Placement", "Registration", "RegisterParams",
     "SweepSource", "WallGeometry", "detect_features", "is_sweep", "match_pair", "read_image", "register",
     "render", "run_mosaic", "run_mosaic_folder", "run_mosaic_sweep", "UndistortedFolderSource", "wall_geometry",
 ]

@@ -150,6 +150,10 @@ class LiveMosaic:
             if H is None:
                 H = self._by_odometry(state)
                 how = "odometry" if H is not None else how
+            if H is None and sum(p.placed for p in self.placements) < self.params.warmup:
+                # nothing worth keeping yet (a featureless first view: the floor, plain paint): start again here
+                self._restart(index)
+                H, how = self._first_H(), "first"
         usable = False
         if H is not None:
             cur.H = H
@@ -194,6 +198,18 @@ class LiveMosaic:
     def usable(self, index: int) -> bool:
         """Whether frame ``index`` counted toward coverage (frames of the warm-up are judged late)."""
         return self._usable_of.get(index, False)
+
+    def _restart(self, index: int) -> None:
+        """Drop the few frames placed so far (fewer than ``warmup``) and start the mosaic again."""
+        note = f"dropped: frame {index} matched none of the first frames and the live mosaic started again there"
+        self.placements = [Placement(p.index, None, "unplaced", False, p.sharpness, p.ms, p.cpu_ms, p.problem or note)
+                           if p.placed else p for p in self.placements]
+        self._canvas = np.zeros((0, 0, 3), np.uint8)
+        self._cover = np.zeros((0, 0), np.uint8)
+        self._origin = np.zeros(2)
+        self._key, self._prev, self._last_pos = None, None, None
+        self._keys, self._sharp, self._scales, self._pending = [], [], [], []
+        self._usable_of = {}
 
     def _first_H(self) -> np.ndarray:
         s = self.params.mosaic_scale / self._k  # mosaic px per work px

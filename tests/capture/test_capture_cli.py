@@ -23,6 +23,23 @@ def test_capture_from_the_simulator(tmp_path):
     s = read_sweep(tmp_path / "sw")
     assert len(s.frames) == 20 and s.complete and s.meta.survey["vessel"] == "MV Test" and s.meta.survey["frame_spacing_m"] == 0.8
     assert "20 frames" in res.output and "drops 0" in res.output
+    # the live mosaic ran beside the writer; this flight never turns inspection mode on, so it mosaicked nothing
+    assert "live mosaic: waiting for inspection mode" in res.output, res.output
+    res = run("capture", "--source", f"sim:{sc}", "-o", tmp_path / "sw2", "--duration", 1, "--no-live-mosaic")
+    assert res.exit_code == 0 and "10 frames" in res.output and "live mosaic" not in res.output, res.output
+
+
+def test_capture_shows_the_live_mosaic_of_the_inspection(tmp_path):
+    sc = write_scenario(tmp_path / "sc", duration_s=6.0, operator=[
+        {"t": 0.5, "button": "takeoff"}, {"t": 3.0, "button": "inspection_mode_on"},
+        {"t": 3.5, "stick": {"vx": 0, "vy": -0.2, "vz": 0, "yaw_rate": 0}}])
+    res = run("capture", "--source", f"sim:{sc}", "-o", tmp_path / "sw")
+    assert res.exit_code == 0, res.output
+    # the last line: what the inspection covered, the gaps, the frames placed of those taken in inspection mode
+    live = [line for line in res.output.splitlines() if line.startswith("live mosaic:")]
+    assert len(live) == 1 and "% covered" in live[0] and "gap" in live[0], res.output
+    placed, taken = map(int, live[0].split(" frames placed")[0].rsplit(" ", 1)[1].split("/"))
+    assert 20 <= taken <= 32 and placed >= taken - 2, live[0]
 
 
 def test_fly_writes_the_sweep_of_the_flight(tmp_path):
@@ -32,6 +49,7 @@ def test_fly_writes_the_sweep_of_the_flight(tmp_path):
     s = read_sweep(tmp_path / "sw")
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()[1:]]
     assert len(s.frames) == 40 and s.meta.simulation["scenario"] == "tiny_wall"
+    assert "live mosaic: waiting for inspection mode" in res.output, res.output  # no inspection mode in this flight
     # the frame's true position is the log's, interpolated at mid-exposure
     f = s.frames[20]
     k = int(f.t_s * 50)

@@ -99,3 +99,54 @@ def test_the_token_is_typed_once_and_the_page_runs_on_the_session_cookie(tmp_pat
             browser.close()
     log = (tmp_path / "commands.jsonl").read_text()
     assert "refused: wrong token" in log and '"logout"' in log and "tablet-token-0123456" not in log
+
+
+def test_the_live_mosaic_panel_grows_with_the_sweep_and_says_when_the_stream_stalls(tmp_path: Path) -> None:
+    port = free_port()
+    station = build_station(None, port=port, command_log=tmp_path / "commands.jsonl")
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    with Served(station, port), sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 900})
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("document.getElementById('role').textContent === 'in control'", timeout=10_000)
+            # GIVEN the vehicle flying, before inspection mode THEN the panel has no pictures
+            page.keyboard.press("t")
+            page.wait_for_function("window.basestation.lastState && window.basestation.lastState.fsm === 'flying'", timeout=10_000)
+            assert page.evaluate("document.getElementById('mosaic').getAttribute('src')") is None
+            # WHEN inspection mode is on and the vehicle sweeps sideways THEN the mosaic and its coverage map arrive...
+            page.keyboard.press("i")
+            page.wait_for_function("window.basestation.mosaicVersion > 0", timeout=15_000)
+            first = page.evaluate("[window.basestation.mosaicVersion, document.getElementById('mosaic').src, document.getElementById('coverage').src]")
+            assert first[1].startswith("data:image/jpeg") and first[2].startswith("data:image/png")
+            page.keyboard.down("d")
+            page.wait_for_function(f"window.basestation.mosaicVersion > {first[0]} + 15", timeout=20_000)
+            page.keyboard.up("d")
+            # ...and change as it grows, with the share covered in words
+            later = page.evaluate("[document.getElementById('mosaic').src, document.getElementById('coverage').src]")
+            assert later[0] != first[1] and later[1] != first[2]
+            page.wait_for_function("/\\d+ % covered/.test(document.getElementById('mosaic-line').textContent)", timeout=10_000)
+            status = page.evaluate("window.basestation.lastState.mosaic")
+            assert status["placed"] >= 15 and status["covered_pct"] > 50 and not status["problem"], status
+            size = page.evaluate("[document.getElementById('mosaic').naturalWidth, document.getElementById('mosaic').naturalHeight]")
+            assert size[0] > size[1] > 0, size  # a sideways sweep: wider than tall
+            page.locator("#mosaic-panel").screenshot(path=str(SHOTS / "5_mosaic_panel.png"))
+            # WHEN the camera is turned away from the wall (inspection mode off: it holds the heading) and inspection
+            # mode goes on again THEN the panel says the stream stalled, and what was placed stays
+            placed = status["placed"]
+            page.keyboard.press("o")
+            page.wait_for_function("window.basestation.lastState.inspection_mode === false", timeout=5_000)
+            page.keyboard.down("e")
+            page.wait_for_function("Math.cos(window.basestation.lastState.vehicle.yaw_true) < 0.2", timeout=15_000)
+            page.keyboard.up("e")
+            assert not page.evaluate("document.getElementById('mosaic-problem').textContent")  # not expected, not stalled
+            page.keyboard.press("i")
+            page.wait_for_function("document.getElementById('mosaic-problem').textContent.includes('stalled')", timeout=15_000)
+            problem = page.evaluate("document.getElementById('mosaic-problem').textContent")
+            assert "no frame for" in problem and "\n" not in problem
+            assert page.evaluate("window.basestation.lastState.mosaic.placed") >= placed
+            assert page.evaluate("document.getElementById('mosaic').src").startswith("data:image/jpeg")
+            page.locator("#mosaic-panel").screenshot(path=str(SHOTS / "6_mosaic_stalled.png"))
+        finally:
+            browser.close()

@@ -89,3 +89,18 @@ def test_a_frame_that_matches_nothing_is_reported_and_later_frames_still_place(l
     assert not p.placed and "could not be placed" in p.problem
     q = live.add_frame(frames[7], {"t_s": 0.7})
     assert q.placed
+
+
+def test_a_featureless_first_view_does_not_hold_the_mosaic_hostage(live_sweep):
+    # GIVEN a sweep that starts on plain paint (no texture to match: the floor, a painted wall before the survey area)
+    frames, _, _ = live_sweep
+    rng = np.random.default_rng(0)
+    plain = [np.clip(128 + rng.normal(0, 3, frames[0].shape), 0, 255).astype(np.uint8) for _ in range(3)]
+    live = LiveMosaic(FRAME_WH)
+    for i, img in enumerate(plain + frames[:30]):
+        live.add_frame(img, {"t_s": 0.1 * i})
+    # THEN the mosaic starts again on the first frame of texture and places the sweep; the plain views are dropped
+    # and say why
+    assert all(p.placed for p in live.placements[4:]), live.summary()
+    assert not any(p.placed for p in live.placements[:3])
+    assert all("started again" in p.problem or "could not be placed" in p.problem for p in live.placements[:3])

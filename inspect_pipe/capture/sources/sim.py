@@ -436,13 +436,14 @@ def _max_corner_motion(H0: np.ndarray, H1: np.ndarray, cam: CameraModel) -> floa
 
 
 def capture_flight(scenario, trajectory: TrajectoryFeed, sweep_dir: str | Path, *, params: SimCameraParams | None = None,
-                   image_format: str = "png", overwrite: bool = False):
+                   image_format: str = "png", overwrite: bool = False, live=None):
     """The camera's sweep of a flown scenario (``fly --sweep``): every frame at the scenario's
-    camera rate on the simulation clock, for the whole flight."""
+    camera rate on the simulation clock, for the whole flight. ``live``: a
+    :class:`inspect_pipe.mosaic.LiveFeed` that gets every frame (simulated time waits for it)."""
     from inspect_pipe.capture._service import CaptureConfig, run_capture
 
     clock = ManualClock(0.0)
     src = SimSource(scenario, trajectory=trajectory, clock=clock, params=params)
     cfg = CaptureConfig(rate_hz=scenario.camera.fps, image_format=image_format, time_base="simulation_s",
                         overwrite=overwrite, wait_for_writer=True)  # simulated time waits for the writer: no drops
-    return run_capture(src, sweep_dir, clock=clock, config=cfg)
+    return run_capture(src, sweep_dir, clock=clock, config=cfg, on_frame=None if live is None else live.tap(block=True))

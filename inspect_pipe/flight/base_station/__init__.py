@@ -67,7 +67,7 @@ def build_station(vehicle: str | None, *, host: str = "127.0.0.1", port: int = 8
         sc: Scenario = parse_scenario(DEFAULT_SCENARIO, source="<default>") if vehicle is None else load_scenario(vehicle[4:])
         plant = SimPlant(sc)
         flight = RealTimeFlight(plant, inbox, scenario=sc)
-        return BaseStation(flight, inbox, cfg, camera=WallCamera(sc), vehicle_name=f"simulator ({sc.name})")
+        return BaseStation(flight, inbox, cfg, camera=WallCamera(sc), vehicle_name=f"simulator ({sc.name})", live=live_feed())
     if vehicle.startswith("mavlink:"):
         from inspect_pipe.flight.mavlink_vehicle import MavlinkLink, MavlinkPlant, parse_vehicle_url
 
@@ -76,6 +76,14 @@ def build_station(vehicle: str | None, *, host: str = "127.0.0.1", port: int = 8
         flight = RealTimeFlight(plant, inbox)
         return BaseStation(flight, inbox, cfg, vehicle_name=f"{link.flavour.value if link.flavour else 'autopilot'} over {link.url}")
     raise InputError(vehicle, "unknown vehicle", "sim:SCENARIO.yaml or mavlink:URL (e.g. mavlink:udpout:127.0.0.1:14540)")
+
+
+def live_feed() -> Any:
+    """The panel's live mosaic: the page's camera (320 px wide) at 0.5 mosaic px per frame px, its
+    pictures published once a second; 3 s without a frame in inspection mode is a stall."""
+    from inspect_pipe.mosaic import LiveFeed, LiveParams
+
+    return LiveFeed(params=LiveParams(mosaic_scale=0.5), pictures=True, stall_s=3.0, queue_frames=4)
 
 
 def check_tls(certfile: Path | None, keyfile: Path | None) -> None:

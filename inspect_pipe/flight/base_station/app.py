@@ -20,8 +20,16 @@ Messages from the page (JSON objects, at most 1 KiB):
 * ``{"type": "button", "button": "takeoff|land|go_ahead|inspection_mode_on|inspection_mode_off"}``;
 * ``{"type": "take_control"}``, ``{"type": "release_control"}``.
 
-To the page: ``hello``, ``state`` (20 Hz), ``image`` (5 Hz JPEG, base64), ``frame`` (captured
-thumbnails), ``role`` and ``error``.
+To the page: ``hello``, ``state`` (20 Hz; with the live mosaic's status under ``mosaic``),
+``image`` (5 Hz JPEG, base64), ``frame`` (captured thumbnails), ``mosaic`` (the live mosaic's
+low-resolution picture, JPEG, and its coverage map, PNG, base64, when they changed, at most once
+a second), ``role`` and ``error``.
+
+The live mosaic: while inspection mode is on and the vehicle flies, a thread renders the camera at
+``mosaic_hz`` (10 Hz) and hands each frame to a :class:`~inspect_pipe.mosaic.LiveFeed` (its own
+thread, a bounded queue: it skips frames rather than slow anything); no frame for its
+``stall_s`` while inspection mode is on (the camera turned away from the wall) is one problem line
+on the panel, and what was placed stays.
 """
 
 from __future__ import annotations
@@ -64,6 +72,8 @@ class StationConfig:
     state_hz: float = 20.0
     image_hz: float = 5.0
     capture_hz: float = 2.0  # frames kept while inspection mode is on
+    mosaic_hz: float = 10.0  # frames rendered for the live mosaic while inspection mode is on
+    mosaic_every_s: float = 1.0  # the panel's pictures are sent at most this often
     command_log: Path | None = None
     tls: bool = False  # served over TLS: the session cookie gets Secure
     # token buckets (rate per s, burst): the page's steady 20 Hz stick stream fits the first
@@ -131,6 +141,7 @@ class _Client:
         addr = ws.client
         self.address = f"{addr.host}:{addr.port}" if addr else "?"
         self.last_stick: tuple | None = None
+        self.mosaic_version: int | None = None  # the live mosaic's pictures this client has
         self.stick_bucket = TokenBucket(*rates.stick_rate)
         self.command_bucket = TokenBucket(*rates.command_rate)
 
@@ -143,13 +154,15 @@ class BaseStation:
     """The flight (a :class:`RealTimeFlight` over a plant) behind a Starlette app."""
 
     def __init__(self, flight: RealTimeFlight, inbox: OperatorInbox, config: StationConfig, *,
-                 camera: Any = None, vehicle_name: str = "simulator") -> None:
+                 camera: Any = None, vehicle_name: str = "simulator", live: Any = None) -> None:
         if not is_loopback(config.host) and not config.token:
             raise ValueError("a token is required to serve on a non-loopback address")
         self.flight = flight
         self.inbox = inbox
         self.cfg = config
         self.camera = camera
+        self.live = live  # an inspect_pipe.mosaic.LiveFeed (pictures=True), or None: no panel
+        self._mosaic_msg: tuple[int, str] | None = None  # (version, the "mosaic" message)
         self.vehicle_name = vehicle_name
         self.clients: dict[int, _Client] = {}
         self.controller: int | None = None
@@ -172,11 +185,19 @@ class BaseStation:
             self._log = self.cfg.command_log.open("a", buffering=1)
         self._thread = threading.Thread(target=self.flight.run, args=(self._stop,), daemon=True, name="flight")
         self._thread.start()
+        self._camera_thread = None
+        if self.live is not None and self.camera is not None:
+            self._camera_thread = threading.Thread(target=self._feed_mosaic, daemon=True, name="mosaic-camera")
+            self._camera_thread.start()
 
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        if getattr(self, "_camera_thread", None) is not None:
+            self._camera_thread.join(timeout=2.0)
+        if self.live is not None:
+            self.live.close(timeout_s=2.0)
         close = getattr(self.flight.plant, "close", None)
         if close is not None:
             close()
@@ -264,7 +285,7 @@ class BaseStation:
             self.log_command(client, {"type": "connect"}, self._role(client))
             await ws.send_text(json.dumps({
                 "type": "hello", "client": client.id, "role": self._role(client), "vehicle": self.vehicle_name,
-                "limits": STICK_LIMITS, "stick_hz": 20,
+                "limits": STICK_LIMITS, "stick_hz": 20, "mosaic": self.live is not None,
             }))
             try:
                 while True:
@@ -364,6 +385,45 @@ class BaseStation:
             self.inbox.press(BUTTONS[msg["button"]])
             self.log_command(client, msg)
 
+    # ------------------------------------------------------------------ the live mosaic
+    def _feed_mosaic(self) -> None:
+        """The camera at ``mosaic_hz`` while inspection mode is on and the vehicle flies, into the
+        live mosaic (never waits for it). Frames are not expected otherwise."""
+        period = 1.0 / self.cfg.mosaic_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            next_t += period
+            snap = self.flight.snapshot()
+            on = bool(snap.get("inspection_mode")) and snap.get("fsm") == "flying"
+            self.live.expect(on)
+            if on:
+                pose = getattr(self.flight.plant, "pose", None)
+                img = self.camera.render(*pose()) if pose is not None else None
+                if img is not None:  # None: the camera does not face the wall (a stall, if it lasts)
+                    self.live.submit(img)  # no t_s: the pauses outside inspection mode are not stalls
+            late = time.monotonic() - next_t
+            if late > period:
+                next_t = time.monotonic()  # re-anchor rather than burst
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def mosaic_message(self) -> tuple[int, str] | None:
+        """The panel's pictures as a ``mosaic`` message (encoded once per new version)."""
+        import cv2
+
+        pics = self.live.pictures() if self.live is not None else None
+        if pics is None:
+            return None
+        version, mosaic, cover = pics
+        if self._mosaic_msg is None or self._mosaic_msg[0] != version:
+            ok1, jpg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, 75])
+            ok2, png = cv2.imencode(".png", cover)
+            if not (ok1 and ok2):
+                return self._mosaic_msg
+            self._mosaic_msg = (version, json.dumps({
+                "type": "mosaic", "version": version, "size": [int(mosaic.shape[1]), int(mosaic.shape[0])],
+                "mosaic_jpeg": base64.b64encode(jpg.tobytes()).decode(), "coverage_png": base64.b64encode(png.tobytes()).decode()}))
+        return self._mosaic_msg
+
     # ------------------------------------------------------------------ outgoing
     def status(self) -> dict:
         lat = [x * 1000 for x in list(self.flight.latencies_s)[-1000:]]
@@ -372,6 +432,7 @@ class BaseStation:
             "type": "state", "controller": self.controller, "clients": len(self.clients),
             "frames_captured": self.frames_captured,
             "latency_ms": {"p50": _r1(_pct(lat, 0.5)), "p99": _r1(_pct(lat, 0.99)), "n": len(lat)},
+            "mosaic": self.live.status().to_json() if self.live is not None else None,
         })
         return snap
 
@@ -379,6 +440,7 @@ class BaseStation:
         period = 1.0 / self.cfg.state_hz
         image_every = max(1, round(self.cfg.state_hz / self.cfg.image_hz))
         capture_every = max(1, round(self.cfg.state_hz / self.cfg.capture_hz))
+        mosaic_every = max(1, round(self.cfg.state_hz * self.cfg.mosaic_every_s))
         loop = asyncio.get_running_loop()
         next_t = loop.time()
         k = 0
@@ -396,7 +458,11 @@ class BaseStation:
                         self.frames_captured += 1
                         self.frames.append(image)
                         frame_msg = json.dumps({"type": "frame", "index": self.frames_captured, "jpeg": image})
+                mosaic = self.mosaic_message() if k % mosaic_every == 0 else None
                 for c in list(self.clients.values()):
+                    if mosaic is not None and c.mosaic_version != mosaic[0]:  # new pictures, or a client that has none yet
+                        c.mosaic_version = mosaic[0]
+                        await self._send_raw(c, mosaic[1])
                     await self._send_raw(c, text)
                     if image is not None:
                         await self._send_raw(c, json.dumps({"type": "image", "jpeg": image}))

@@ -8,7 +8,7 @@ const wsUrl = (location.protocol === "https:" ? "wss://" : "ws://") + location.h
 let ws = null, role = "watch", limits = {vx: 1, vy: 1, vz: 0.5, yaw_rate: 0.8};
 const keys = new Set();
 let stateCount = 0, rateT0 = performance.now();
-window.basestation = {states: 0, lastState: null, errors: []};  // for tests and the curious
+window.basestation = {states: 0, lastState: null, errors: [], mosaicVersion: 0};  // for tests and the curious
 
 function fmt(v, unit, nd = 2) { return v === null || v === undefined ? "n/a" : v.toFixed(nd) + " " + unit; }
 function cmdText(c) { return c ? `${c.vx.toFixed(2)} / ${c.vy.toFixed(2)} / ${c.vz.toFixed(2)} m/s, ${c.yaw_rate.toFixed(2)} rad/s` : "-"; }
@@ -101,6 +101,10 @@ function show(s) {
   for (const f of s.feedback || []) { const div = document.createElement("div"); div.textContent = f; $("feedback").appendChild(div); }
   $("frames-count").textContent = String(s.frames_captured || 0);
   if (s.latency_ms && s.latency_ms.p99 !== null) $("latency").textContent = s.latency_ms.p99.toFixed(0);
+  if (s.mosaic) {
+    if (s.mosaic.frames || s.inspection_mode) $("mosaic-line").textContent = s.mosaic.line;
+    $("mosaic-problem").textContent = s.mosaic.problem || "";
+  }
 }
 
 setInterval(() => {
@@ -116,12 +120,20 @@ function connect() {
     const m = JSON.parse(ev.data);
     if (m.type === "state") show(m);
     else if (m.type === "image") $("camera").src = "data:image/jpeg;base64," + m.jpeg;
+    else if (m.type === "mosaic") {
+      $("mosaic").src = "data:image/jpeg;base64," + m.mosaic_jpeg;
+      $("coverage").src = "data:image/png;base64," + m.coverage_png;
+      window.basestation.mosaicVersion = m.version;
+    }
     else if (m.type === "frame") {
       const img = document.createElement("img");
       img.src = "data:image/jpeg;base64," + m.jpeg; img.title = "frame " + m.index;
       $("frames").prepend(img);
       while ($("frames").children.length > 12) $("frames").lastChild.remove();
-    } else if (m.type === "hello") { $("vehicle").textContent = m.vehicle; limits = m.limits || limits; setRole(m.role); }
+    } else if (m.type === "hello") {
+      $("vehicle").textContent = m.vehicle; limits = m.limits || limits; setRole(m.role);
+      if (!m.mosaic) $("mosaic-line").textContent = "no live mosaic: no camera stream from this vehicle (the capture service records the sweep)";
+    }
     else if (m.type === "role") setRole(m.role);
     else if (m.type === "error") { $("error").textContent = m.message; window.basestation.errors.push(m.message); }
   };
