@@ -125,9 +125,13 @@ class _Onnx(DetectorEngine):
 
     def model_doc(self, kinds):
         m = self.model
-        return {"file": str(self.model_path), "engine": self.name, "version": self.version,
-                "operating_points": {k: round(m.thresholds_u8[k] / 255, 4) for k in kinds},
-                "min_area_px": {k: m.min_area_px[k] for k in kinds}}
+        doc = {"file": str(self.model_path), "engine": self.name, "version": self.version,
+               "operating_points": {k: round(m.thresholds_u8[k] / 255, 4) for k in kinds},
+               "min_area_px": {k: m.min_area_px[k] for k in kinds}}
+        sm = getattr(m, "states_model", None) or getattr(getattr(m, "onnx", None), "states_model", None)  # onnx or fused
+        if sm is not None and "corrosion" in kinds:
+            doc["condition_states"] = {"file": str(sm.path), "version": sm.version}
+        return doc
 
 
 class _Fused(_Onnx):
@@ -209,13 +213,15 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
             raise InputError(path, str(err)) from None
     _need_onnxruntime(engine)
     if engine == "onnx":
-        from ._onnx_detect import MULTIPLE_OF, load_onnx_model
+        from ._onnx_detect import MULTIPLE_OF, load_onnx_model, with_condition_states
 
         try:
             # onnxruntime prints a banner ("EP Error ...") to stdout and its C++ log lines to
             # stderr when a file is damaged: the user sees the one line below instead
             with _quiet():
                 model_ = load_onnx_model(path, threads=threads)
+                if not model:  # the shipped default: condition states from the shipped v2 head
+                    model_ = with_condition_states(model_, threads=threads)
             return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
         except ValueError as err:
             raise InputError(path, str(err), "use --engine saliency, or train one with "

@@ -35,6 +35,7 @@ from ._onnx_detect import (
     load_onnx_model,
     onnx_maps,
     onnx_probabilities_u8,
+    with_condition_states,
 )
 
 FUSED_FORMAT = "inspect_pipe.defect_fused/1"
@@ -108,6 +109,8 @@ def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | N
     p = load_fused_params(params_path)
     sal = load_model(Path(saliency_path or default_model_path()))
     onx = load_onnx_model(Path(onnx_path or default_onnx_path()), threads=threads)
+    if onnx_path is None:  # the shipped network: condition states from the shipped v2 head
+        onx = with_condition_states(onx, threads=threads)
     cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}
     return FusedModel(params_path, p, sal, onx,
                       {k: float(c["weight_saliency"]) for k, c in cls.items()},

@@ -10,6 +10,7 @@ full-resolution maps) and are up-sampled here: the class probabilities and, for 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +64,10 @@ class OnnxModel:
     #: validation images; metadata ``calibration``): the maps this engine returns are calibrated,
     #: and that class's threshold is 128.
     calibration_luts: dict = field(default_factory=dict)
+    #: For a network without a condition-state head: the network whose head gives the condition
+    #: state of each corrosion pixel this one decides (the shipped default: v2's, see
+    #: :func:`with_condition_states`); None: no states.
+    states_model: OnnxModel | None = None
 
     @property
     def version(self) -> str:
@@ -241,6 +246,11 @@ def onnx_maps(
         raise ValueError(f"tile and margin must be multiples of {MULTIPLE_OF} px")
     want = [(i, k) for i, k in enumerate(model.classes) if kinds is None or k in kinds]
     sev = model.severity_output is not None and any(k == "corrosion" for _, k in want)
+    if model.severity_output is None and model.states_model is not None and any(k == "corrosion" for _, k in want):
+        return onnx_maps(image, dataclasses.replace(model, states_model=None), kinds=kinds, tile_px=tile_px,
+                         margin_px=margin_px, whole_max_px=whole_max_px)[0], \
+            onnx_maps(image, model.states_model, kinds=("corrosion",), tile_px=tile_px, margin_px=margin_px,
+                      whole_max_px=whole_max_px)[1]
     h, w = image.shape[:2]
     s = _stride(model)
     if h * w <= whole_max_px:
@@ -275,9 +285,7 @@ def onnx_probabilities_u8(image: np.ndarray, model: OnnxModel, *, kinds=None, ti
 
 
 def _no_severity(model: OnnxModel) -> OnnxModel:
-    import dataclasses
-
-    return dataclasses.replace(model, severity_output=None)
+    return dataclasses.replace(model, severity_output=None, states_model=None)
 
 
 def _detection(probs: dict[str, np.ndarray], model: OnnxModel, kinds, states: np.ndarray | None = None) -> Detection:
@@ -335,9 +343,15 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
             p, z = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]), severity=sev)
             h, w = images[part[0]].shape[:2]
             s = _stride(model)
+            zs = None
+            if model.severity_output is None and model.states_model is not None and "corrosion" in kinds:
+                sm = model.states_model
+                zs = _run(sm, np.stack([_prepare(images[i], sm.meta) for i in part]), severity=True)[1]
             for j, i in enumerate(part):
-                out[i] = _detection({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds},
-                                    model, kinds, _full_states(z[j], s, h, w, model.severity_bias) if sev else None)
+                states = _full_states(z[j], s, h, w, model.severity_bias) if sev else \
+                    _full_states(zs[j], _stride(sm), h, w, sm.severity_bias) if zs is not None else None
+                out[i] = _detection(_calibrated({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds}, model),
+                                    model, kinds, states)
     return out  # type: ignore[return-value]
 
 
@@ -346,6 +360,17 @@ def default_onnx_path() -> Path:
     the pretrained-encoder network's (0.8286), and in the demo flight v2 missed all three cracks
     that v1 finds (docs/detect_onnx.md); v2 is shipped for its condition states."""
     return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
+
+
+def with_condition_states(model: OnnxModel, *, threads: int = 1) -> OnnxModel:
+    """``model`` with the shipped condition-state network attached when it has no head of its
+    own: corrosion it decides gets the state of v2's head (validation mean F1 of fair / poor /
+    severe 0.397 with v1's decisions, 0.425 with v2's own; docs/detect_onnx.md). Costs one more
+    network pass on images where corrosion is asked for."""
+    if model.severity_output is not None or "corrosion" not in model.classes:
+        return model
+    states = load_onnx_model(condition_state_onnx_path(), threads=threads)
+    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None))
 
 
 def condition_state_onnx_path() -> Path:

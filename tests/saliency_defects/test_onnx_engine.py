@@ -302,3 +302,25 @@ def test_calibrated_surface_map_keeps_the_decision_and_is_sharper(sev_model):
     assert np.array_equal(cal_map >= 128, raw_map >= cal["operating_point_u8"])
     dist = lambda m: float(np.minimum(m, 255 - m.astype(int)).mean())  # noqa: E731
     assert dist(cal_map) < dist(raw_map)
+
+
+def test_default_engine_gives_condition_states_from_the_v2_head(tmp_path):
+    from inspect_pipe.saliency_defects import load_engine
+
+    # GIVEN the shipped default engine (v1 decides) and the same v1 file given explicitly
+    default = load_engine("onnx")
+    given = load_engine("onnx", od.default_onnx_path())
+    img, _ = _fixture("vt_train_112.jpeg", "vt_train_112.mask.png")
+    d, g = default.detect(img, kinds=("corrosion",)), given.detect(img, kinds=("corrosion",))
+    # THEN both decide the same corrosion, and only the default names a state for every decided pixel
+    assert np.array_equal(d.mask, g.mask) and g.severity is None
+    assert d.severity is not None and np.array_equal(d.severity > 0, d.mask)
+    # the states are v2's head on the pixels v1 decides
+    _, states = od.onnx_maps(img, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    assert np.array_equal(d.severity, np.where(d.mask, states, 0))
+    assert default.model_doc(("corrosion",))["condition_states"]["version"] == "2"
+    assert "condition_states" not in given.model_doc(("corrosion",))
+    # AND a batch of frames gets the same states as one by one
+    b = default.detect_batch([img, img[:, ::-1].copy()], kinds=("corrosion",))
+    assert np.array_equal(b[0].severity, d.severity)
+    assert np.array_equal(b[1].severity, default.detect(img[:, ::-1].copy(), kinds=("corrosion",)).severity)
