@@ -4,16 +4,21 @@ A sweep adds what a folder of images lacks: the camera's intrinsics (frames are 
 before registration, and the mosaic is rectified to the wall plane) and the vehicle's state at
 each exposure. From those:
 
-- ``m_per_px``: metres of wall per mosaic pixel, from the focal length and the estimated distance
-  of the camera to the wall (front sonar, less the camera's forward offset on the body);
+- ``m_per_px``: metres of wall per mosaic pixel: the scale of ``wall_from_mosaic``; the camera's
+  scale (focal length and the estimated distance of the camera to the wall: front sonar, less the
+  camera's forward offset on the body) or, with the smooth-drift fit, within 0.5 % of it;
 - ``wall_from_mosaic``: the 3x3 map from mosaic pixels to wall metres (u right from the wall's left
   edge, v up from the floor) of the surveyed wall (the survey plan's, or the simulated wall the
-  vehicle faced; positions reach the hold frame through the plan's take-off tie). Its scale is ``m_per_px``; its rotation and offset are fitted
-  robustly (Huber) between the frame centres in the mosaic and the wall points the vehicle's
-  position estimates put in front of the camera. Odometry drifts and the mosaic does not, so the
-  mosaic fixes the shape and odometry only places it. The odometry's linear drift (a velocity bias
-  of the optical flow) is estimated jointly, since the lawnmower revisits the wall pass after pass;
-  what remains is the position error at the start of the survey. The residual is reported.
+  vehicle faced; positions reach the hold frame through the plan's take-off tie): a similarity
+  fitted robustly (Huber) between the point of the wall straight ahead of each camera (the foot of
+  the camera centre, from the frame's pose over the wall plane) in the mosaic and the wall point
+  the vehicle's position estimate puts there. Odometry drifts and the mosaic does not, so the
+  mosaic fixes the shape and odometry places it. When the sweep starts on the ground (its first
+  state sample says landed), the position estimate starts at the take-off point: its drift is then
+  a smooth curve from zero at that sample (``_smooth_drift_fit``), fitted jointly with the
+  similarity, whose scale is held near the camera's (``m_per_px`` below) within 0.5 %. Without
+  that start the drift is a straight line with a free offset and the scale is the camera's
+  (``_linear_drift_fit``). The residual is reported.
 """
 
 from __future__ import annotations
@@ -119,6 +124,56 @@ class WallGeometry:
         }
 
 
+#: The smooth-drift fit (chosen on simulated demo flights: walls of seeds 5, 11 and 12, one flight
+#: each; docs/mosaic.md): odometry noise (each axis) in the air and on the ground, the drift's knots,
+#: the spread of its second difference per knot (how fast the velocity bias may change), the
+#: scale's spread about the camera's.
+ODOMETRY_SD_M = 0.005
+GROUND_SD_M = 0.002  # the drift seen while landed (each sample)
+DRIFT_KNOT_S = 2.0
+DRIFT_CURVATURE_SD_M = 0.0033
+SCALE_SD = 0.005
+HUBER_M = 0.05
+
+
+def _foot_px(h: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """The frame pixel that sees the foot of the camera centre on the wall (the wall point straight
+    ahead of the camera, along the plane's normal), from ``h`` (frame px -> mosaic px) of a pose
+    model (``h^-1 ~ K [r1 r2 t] A``, ``A`` a similarity of the wall plane); None when ``h`` is no
+    such pose (free homographies)."""
+    B = np.linalg.inv(K) @ np.linalg.inv(h)
+    n1, n2 = np.linalg.norm(B[:, 0]), np.linalg.norm(B[:, 1])
+    if n1 <= 0 or n2 <= 0:
+        return None
+    r1, r2 = B[:, 0] / n1, B[:, 1] / n2
+    if abs(n1 / n2 - 1) > 0.02 or abs(r1 @ r2) > 0.02:
+        return None
+    n = np.cross(r1, r2)
+    if abs(n[2]) < 0.5:  # the wall seen at more than 60 degrees: keep the principal point
+        return None
+    p = K @ (n if n[2] > 0 else -n)
+    return p / p[2]
+
+
+def _ground_drift(sweep, to_wall_u) -> np.ndarray | None:
+    """(N, 2) [t, u drift] of the sweep's first state samples while the vehicle stood landed at the
+    take-off point, where the position estimate is initialised: the estimate's change along the wall
+    there is its drift alone (the first row is (t0, 0)). None when the first state sample is not
+    landed (the sweep started in the air)."""
+    rows = []
+    for f in sweep.frames:
+        if f.position_m is None:
+            continue
+        if f.fsm != "landed":
+            break
+        rows.append((float(f.t_s), to_wall_u(f.position_m)))
+    if not rows:
+        return None
+    g = np.array(rows, float)
+    g[:, 1] -= g[0, 1]
+    return g
+
+
 def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px: tuple[float, float]) -> WallGeometry | None:
     """Mosaic -> wall map for the placed frames ``H`` (frame px -> mosaic px), or None when the
     sweep carries no position or wall distance estimates."""
@@ -127,6 +182,7 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
     frame = meta.wall_frame()  # the surveyed wall (survey plan, or the simulated wall faced)
     a = frame.facing_heading_rad  # the vehicle faces the wall: the camera's offset turned with it
     cam_offset = np.array([cam_t[0] * np.cos(a) - cam_t[1] * np.sin(a), cam_t[0] * np.sin(a) + cam_t[1] * np.cos(a), cam_t[2]])
+    K = np.array([[focal_px, 0.0, principal_px[0]], [0.0, focal_px, principal_px[1]], [0.0, 0.0, 1.0]])
     mos, wall, dists, times = [], [], [], []
     c = np.array([principal_px[0], principal_px[1], 1.0])
     for i, h in H.items():
@@ -135,54 +191,146 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
             dists.append(f.dist_front_m - cam_t[0])
         if f.position_m is None:
             continue
-        p = h @ c
+        foot = _foot_px(h, K)
+        p = h @ (c if foot is None else foot)
         mos.append(p[:2] / p[2])
         wall.append(frame.to_wall(meta.to_hold(f.position_m)[0] + cam_offset)[0])
         times.append(f.t_s)
     if not dists or len(mos) < 3:
         return None
     m_per_px = float(np.mean(dists) / focal_px)
-    M, W = np.array(mos), np.array(wall)
-    F = np.diag([1.0, -1.0])  # mosaic rows run down, wall v runs up
+    M, W, t = np.array(mos), np.array(wall), np.array(times, float)
+    ground = _ground_drift(sweep, lambda p: float(frame.to_wall(meta.to_hold(p)[0] + cam_offset)[0, 0]))
+    if ground is not None and ground[0, 0] <= t.min():
+        L, tr, drift, r, free = _smooth_drift_fit(M, W, t, ground, m_per_px)
+        scale = float(np.sqrt(abs(np.linalg.det(L))))
+        method = ("similarity fitted (Huber) between the wall points straight ahead of the cameras in the mosaic and the "
+                  "vehicle's position estimates, with the odometry's drift along the wall a smooth curve from zero at take-off "
+                  "(the drift seen while landed included) and the altitude as measured; scale within 0.5 % of focal length "
+                  "and wall distance")
+    else:
+        L, tr, drift, r, free = _linear_drift_fit(M, W, t, m_per_px)
+        scale = m_per_px
+        method = WallGeometry.method
+    T = np.eye(3)
+    T[:2, :2], T[:2, 2] = L, tr
+    return WallGeometry(scale, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift),
+                        frame.wall.value, meta.wall_frame_note(), method)
 
-    def fit_to(Wt: np.ndarray, weights: np.ndarray, scale: float | None):
-        wsum = weights.sum()
-        mc = (weights[:, None] * M).sum(0) / wsum
-        wc = (weights[:, None] * Wt).sum(0) / wsum
-        A = ((weights[:, None] * (F @ (Wt - wc).T).T).T @ (M - mc))  # cross-covariance
-        U, S, Vt = np.linalg.svd(A)
-        D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
-        R = U @ D @ Vt
-        if scale is None:
-            scale = float(np.trace(np.diag(S) @ D) / (weights * ((M - mc) ** 2).sum(1)).sum())
-        L = scale * F @ R
-        t = wc - L @ mc
-        return L, t, scale
 
-    # Odometry = truth + offset + drift * (t - t0): the mosaic knows the true relative layout, so
-    # the drift rate is observable wherever the sweep revisits the wall (pass to pass). Alternate:
-    # Procrustes (fixed scale) on drift-corrected positions, then the drift rate by least squares;
-    # Huber weights at 5 cm throughout.
-    dt = np.array(times) - min(times)
+_F = np.diag([1.0, -1.0])  # mosaic rows run down, wall v runs up
+
+
+def _procrustes(M: np.ndarray, Wt: np.ndarray, weights: np.ndarray, scale: float | None):
+    wsum = weights.sum()
+    mc = (weights[:, None] * M).sum(0) / wsum
+    wc = (weights[:, None] * Wt).sum(0) / wsum
+    A = ((weights[:, None] * (_F @ (Wt - wc).T).T).T @ (M - mc))  # cross-covariance
+    U, S, Vt = np.linalg.svd(A)
+    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    if scale is None:
+        scale = float(np.trace(np.diag(S) @ D) / (weights * ((M - mc) ** 2).sum(1)).sum())
+    L = scale * _F @ R
+    return L, wc - L @ mc, scale
+
+
+def _linear_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, m_per_px: float):
+    """Odometry = truth + offset + drift * (t - t0), the scale the camera's: the mosaic knows the
+    true relative layout, so the drift rate is observable wherever the sweep revisits the wall
+    (pass to pass). Alternate: Procrustes (fixed scale) on drift-corrected positions, then the
+    drift rate by least squares; Huber weights throughout. -> (L, t, drift (u, v) m/s, residuals,
+    the scale a free fit chooses)."""
+    dt = t - t.min()
     drift = np.zeros(2)
     w = np.ones(len(M))
     span = float(np.ptp(dt))
     for _ in range(30):
         Wc = W - np.outer(dt, drift)
-        L, t, _ = fit_to(Wc, w, m_per_px)
-        r_vec = W - ((M @ L.T) + t)  # what odometry adds to the mosaic's placement
+        L, tr, _ = _procrustes(M, Wc, w, m_per_px)
+        r_vec = W - ((M @ L.T) + tr)  # what odometry adds to the mosaic's placement
         if span > 1.0:
             A = np.c_[np.ones(len(dt)), dt] * np.sqrt(w)[:, None]
             coef, *_ = np.linalg.lstsq(A, r_vec * np.sqrt(w)[:, None], rcond=None)
             drift = coef[1]
-        r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + t), axis=1)
-        w = np.where(r <= 0.05, 1.0, 0.05 / np.maximum(r, 1e-12))
-    _, _, free = fit_to(W - np.outer(dt, drift), np.ones(len(M)), None)
-    r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + t), axis=1)
-    T = np.eye(3)
-    T[:2, :2], T[:2, 2] = L, t
-    return WallGeometry(m_per_px, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift),
-                        frame.wall.value, meta.wall_frame_note())
+        r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + tr), axis=1)
+        w = np.where(r <= HUBER_M, 1.0, HUBER_M / np.maximum(r, 1e-12))
+    _, _, free = _procrustes(M, W - np.outer(dt, drift), np.ones(len(M)), None)
+    r = np.linalg.norm(W - np.outer(dt, drift) - ((M @ L.T) + tr), axis=1)
+    return L, tr, drift, r, free
+
+
+def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.ndarray, m_per_px: float):
+    """Odometry = truth + drift(t) with drift(t0) = 0 at the first state sample, on the ground: the
+    position estimate starts at the take-off point and its error grows from there, not necessarily
+    linearly (a velocity bias that changes). The drift is piecewise linear on knots every
+    ``DRIFT_KNOT_S`` from ``t0`` along u (the integrated speed; v is the measured altitude, which
+    does not drift: a drift term along v would trade with the scale, since a lawnmower climbs as time
+    goes on), and its second differences are held small (``DRIFT_CURVATURE_SD_M``); the mosaic's
+    relative layout makes the drift's shape observable, the take-off start and the drift seen while
+    still landed (``ground``: (t, u drift) rows, ``_ground_drift``) fix its level. One weighted linear
+    least-squares problem in the similarity ``[[a, -b], [b, a]] F`` (its scale held within
+    ``SCALE_SD`` of ``m_per_px`` along the direction a first Procrustes fit finds), its offset and
+    the drift; Huber weights. -> (L, t, mean drift rate (u, 0) m/s, residuals, the scale a fit
+    without the scale prior chooses)."""
+    n = len(M)
+    m = M @ _F.T
+    t0 = float(ground[0, 0])
+    dt = t - t0
+    knots = np.arange(0.0, dt.max() + DRIFT_KNOT_S, DRIFT_KNOT_S)
+
+    def hat(x: np.ndarray) -> np.ndarray:  # drift at times x (from t0) from the knot values, drift(t0) = 0
+        D = np.zeros((len(x), len(knots)))
+        j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
+        fr = np.clip((x - knots[j]) / DRIFT_KNOT_S, 0.0, 1.0)
+        D[np.arange(len(x)), j] = 1 - fr
+        D[np.arange(len(x)), j + 1] = fr
+        return D[:, 1:]
+
+    Du = hat(dt)
+    k = Du.shape[1]
+    z = np.zeros((n, 1))
+    Au = np.c_[m[:, :1], -m[:, 1:], np.ones((n, 1)), z, Du]
+    Av = np.c_[m[:, 1:], m[:, :1], z, np.ones((n, 1)), np.zeros((n, k))]
+    A = np.r_[Au, Av] / ODOMETRY_SD_M
+    y = np.r_[W[:, 0], W[:, 1]] / ODOMETRY_SD_M
+    npar = A.shape[1]
+    curv = []
+    for q in range(len(knots) - 2):  # second differences of the knot values, drift(knot 0) = 0
+        row = np.zeros(npar)
+        for jj, cf in ((q, 1.0), (q + 1, -2.0), (q + 2, 1.0)):
+            if jj >= 1:
+                row[4 + jj - 1] = cf / DRIFT_CURVATURE_SD_M
+        curv.append(row)
+    curv = np.array(curv).reshape(-1, npar)
+    G = np.zeros((len(ground), npar))  # the drift seen on the ground
+    G[:, 4:4 + k] = hat(ground[:, 0] - t0) / GROUND_SD_M
+    curv = np.r_[curv, G]
+    curv_q = np.r_[np.zeros(len(curv) - len(G)), ground[:, 1] / GROUND_SD_M]
+    # the scale prior along the rotation a first fit finds (a, b) ~ s (cos, sin)
+    L0, _, _ = _procrustes(M, W, np.ones(n), m_per_px)
+    c0, s0 = (L0 @ _F)[0, 0] / m_per_px, (L0 @ _F)[1, 0] / m_per_px
+    prior = np.zeros((1, npar))
+    prior[0, :2] = np.array([c0, s0]) / (SCALE_SD * m_per_px)
+
+    def solve(w: np.ndarray, with_prior: bool) -> np.ndarray:
+        sw = np.sqrt(np.r_[w, w])[:, None]
+        P = np.r_[curv, prior] if with_prior else curv
+        q = np.r_[curv_q, [1.0 / SCALE_SD]] if with_prior else curv_q
+        x, *_ = np.linalg.lstsq(np.r_[A * sw, P], np.r_[y * sw[:, 0], q], rcond=None)
+        return x
+
+    w = np.ones(n)
+    for _ in range(20):
+        x = solve(w, True)
+        r = np.hypot(Au @ x - W[:, 0], Av @ x - W[:, 1])
+        w = np.where(r <= HUBER_M, 1.0, HUBER_M / np.maximum(r, 1e-12))
+    xf = solve(w, False)
+    a, b, tu, tv = x[:4]
+    L = np.array([[a, -b], [b, a]]) @ _F
+    end = float(dt.max()) if dt.max() > 0 else 1.0
+    drift_u = float(np.interp(dt.max(), knots, np.r_[0.0, x[4:4 + k]])) / end
+    return L, np.array([tu, tv]), (drift_u, 0.0), r, float(np.hypot(xf[0], xf[1]))
 
 
 def control_point_geometry(sweep, H: dict[int, np.ndarray], odometry: WallGeometry | None) -> WallGeometry | None:
