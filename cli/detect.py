@@ -249,8 +249,15 @@ def run(
     with corrosion (--kind corrosion or all) and the onnx or fused engine also OUT/NAME.severity.png
     (condition state: 0 none, 1 fair, 2 poor, 3 severe) and each corrosion region's "severity".
 
-    Examples: inspect-pipe detect wall.jpg -o out/det ; inspect-pipe detect frames/ -o out/det --kind crack ;
-    inspect-pipe detect frames/ -o out/det --engine saliency ; inspect-pipe detect frames/ -o out/det --engine fused
+    Examples:
+
+      inspect-pipe detect wall.jpg -o out/det
+
+      inspect-pipe detect frames/ -o out/det --kind crack
+
+      inspect-pipe detect frames/ -o out/det --engine saliency
+
+      inspect-pipe detect frames/ -o out/det --engine fused
     """
     from inspect_pipe.saliency_defects import load_engine
 

@@ -5,6 +5,7 @@ Each command lives in its own module of this package and is registered here, onc
 
 from __future__ import annotations
 
+import inspect
 from typing import Annotated
 
 import typer
@@ -49,7 +50,20 @@ def _main(
     """Supervised-autonomy MAV inspection of cargo holds: fly, capture, mosaic, detect, report."""
 
 
-app.command("mosaic", help=_mosaic.HELP)(_mosaic.mosaic)
+def reflow(text: str) -> str:
+    """A help text with its prose paragraphs joined into one line each, so the terminal wraps them
+    to its own width (typer keeps single line breaks, so a text hard-wrapped at 100 columns came
+    out ragged in an 80-column terminal). Paragraphs with indented lines (examples), list items or
+    command lines keep their lines."""
+    out = []
+    for para in inspect.cleandoc(text).split("\n\n"):
+        lines = para.split("\n")
+        keep = any(ln.startswith((" ", "\t", "- ", "* ", "inspect-pipe ", "$ ")) for ln in lines) or para.startswith("\b")
+        out.append(para if keep else " ".join(ln.strip() for ln in lines))
+    return "\n\n".join(out)
+
+
+app.command("mosaic", help=reflow(_mosaic.HELP))(_mosaic.mosaic)
 
 
 @app.command("version")
@@ -58,19 +72,22 @@ def version() -> None:
     typer.echo(inspect_pipe.__version__)
 
 
+for _cmd in _detect.app.registered_commands:  # detect run / detect train: their docstrings
+    _cmd.help = reflow(_cmd.help or _cmd.callback.__doc__ or "")
+_detect.app.info.help = reflow(_detect.app.info.help or "")
 app.add_typer(_detect.app, name="detect")
-app.command("fly", help=_fly.HELP)(_fly.fly)
-app.command("base-station", help=_base_station.HELP)(_base_station.base_station)
-app.command("capture", help=_capture.HELP)(_capture.capture)
-app.command("calibrate", help=_calibrate.HELP)(_calibrate.calibrate)
-app.command("doctor", help=_doctor.HELP)(_doctor.doctor)
-app.command("report", help=_report.HELP)(_report.report)
-app.command("run", help=_run.HELP)(_run.run)
-app.command("demo", help=_demo.HELP)(_demo.demo)
-app.command("campaign", help=_campaign.HELP)(_campaign.campaign)
-app.command("import", help=_import.HELP)(_import.import_)
-app.command("compare", help=_compare.HELP)(_compare.compare)
-app.command("review", help=_review.HELP)(_review.review)
+app.command("fly", help=reflow(_fly.HELP))(_fly.fly)
+app.command("base-station", help=reflow(_base_station.HELP))(_base_station.base_station)
+app.command("capture", help=reflow(_capture.HELP))(_capture.capture)
+app.command("calibrate", help=reflow(_calibrate.HELP))(_calibrate.calibrate)
+app.command("doctor", help=reflow(_doctor.HELP))(_doctor.doctor)
+app.command("report", help=reflow(_report.HELP))(_report.report)
+app.command("run", help=reflow(_run.HELP))(_run.run)
+app.command("demo", help=reflow(_demo.HELP))(_demo.demo)
+app.command("campaign", help=reflow(_campaign.HELP))(_campaign.campaign)
+app.command("import", help=reflow(_import.HELP))(_import.import_)
+app.command("compare", help=reflow(_compare.HELP))(_compare.compare)
+app.command("review", help=reflow(_review.HELP))(_review.review)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -168,3 +168,18 @@ def test_capture_draws_a_rich_live_line_on_a_terminal(monkeypatch, tmp_path):
     buf.seek(0)
     res = runner.invoke(app, ["capture", "-q", "--source", f"replay:{folder}", "-o", str(tmp_path / "sw2"), "--rate", "50", "--speed", "50"])
     assert res.exit_code == 0 and buf.getvalue() == ""  # -q: no live line
+
+
+def test_help_prose_is_reflowed_to_the_terminal_width():
+    from cli.main import app, reflow
+
+    # GIVEN a help text hard-wrapped in the source, with an examples block
+    text = "First line.\n\nSome prose\nwrapped at 100 columns\nin the source.\n\nExamples:\n\n  inspect-pipe a\n  inspect-pipe b\n"
+    # THEN prose paragraphs become one line each (the terminal wraps them) and examples keep their lines
+    assert reflow(text) == "First line.\n\nSome prose wrapped at 100 columns in the source.\n\nExamples:\n\n  inspect-pipe a\n  inspect-pipe b"
+    # AND every command's help, as registered, has no hard-wrapped prose paragraph left
+    for cmd in app.registered_commands:
+        for para in (cmd.help or "").split("\n\n"):
+            lines = para.split("\n")
+            if len(lines) > 1:
+                assert any(ln.startswith((" ", "- ", "* ", "inspect-pipe ")) for ln in lines), (cmd.name, para[:80])
