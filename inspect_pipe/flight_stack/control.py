@@ -46,15 +46,18 @@ class PID:
         self._prev_error = None
 
     def update(
-        self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False, unwind: bool = True
+        self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False, unwind: bool = True,
+        integrate: float | None = None,
     ) -> float:
         """``rate``: d(error)/dt when measured directly (avoids differentiating noise);
-        ``unwind``: fast unwinding allowed this step."""
-        if not freeze and dt > 0.0 and abs(error) <= self.integrate_band:
+        ``unwind``: fast unwinding allowed this step; ``integrate``: the error the integrator
+        takes, when not ``error`` (a reference model's tracking error)."""
+        ie = error if integrate is None else integrate
+        if not freeze and dt > 0.0 and abs(ie) <= self.integrate_band:
             ki = self.ki
-            if unwind and self.integral * error < 0.0 and abs(error) > self.unwind_threshold:
+            if unwind and self.integral * ie < 0.0 and abs(ie) > self.unwind_threshold:
                 ki *= self.unwind_factor
-            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + ki * error * dt))
+            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + ki * ie * dt))
         if not freeze and dt > 0.0 and self.leak_s > 0.0:
             self.integral *= max(0.0, 1.0 - dt / self.leak_s)
         if rate is None:
@@ -155,7 +158,7 @@ class FlightController:
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
         self.vertical_mode = VerticalMode.SPEED
-        self._last_az = 0.0  # the height loop's last vertical acceleration command
+        self._vz_ref: float | None = None  # the vertical speed reference model (see update)
         # Disturbance observers (m/s^2 the IMU shows missing): thrust shortfall, wind.
         lag = p.accel_observer_lag_s
         obs_xy = dict(tau_s=p.accel_observer_xy_tau_s, limit=p.accel_observer_xy_limit_m_s2, lag_s=lag)
@@ -168,7 +171,7 @@ class FlightController:
             pid.reset()
         self.height_ref_m = None
         self.vertical_mode = VerticalMode.SPEED
-        self._last_az = 0.0
+        self._vz_ref = None
         for o in (self.obs_x, self.obs_y, self.obs_z):
             o.reset()
 
@@ -206,7 +209,6 @@ class FlightController:
         thrust_cap_frac: float = 1.0,
         unwind_vertical: bool = False,
         accel_measured: tuple[float, float, float] | None = None,
-        handover_trim_only: bool = False,
     ) -> AttitudeSetpoint:
         """``accel_measured``: the IMU's acceleration (heading frame) since the last set-point,
         given while airborne: it feeds the disturbance observers (None leaves them as they are)."""
@@ -242,20 +244,30 @@ class FlightController:
             stalled = (err > band and est.vz_m_s < towards) or (err < -band and est.vz_m_s > -towards)
             az = self.pid_height.update(err, dt, rate=-est.vz_m_s, freeze=freeze_integrators or not (near or stalled))
             trim = self.pid_height.integral
-            self._last_az = az
         else:
             if self.vertical_mode is VerticalMode.HEIGHT:
-                # Hand over the height loop's whole output, not only its integrator: while it was
-                # correcting a sink (battery sag) its P and D terms carried part of the thrust, and
-                # an alarm mode that took over then dropped it (safety campaign: sank onto a box).
-                # Not into an alarm mode, though: its last output answered the alarm's filled-in
-                # state (a sudden climb), and kept as trim it drove the alarm descent to 0.48 m/s
-                # instead of 0.2 (safety campaign, seed 4); the observer carries a sag now.
+                # Hand over the height loop's trim (its integrator), not its whole output: its P and
+                # D terms answer its own height error and the noisy vertical speed of that tick,
+                # and kept as trim they became a lasting push (0.2 m/s^2 from one tick's D term
+                # made Fig. 7's 0.2 m/s descent 0.218 m/s; into an alarm mode, the answer to the
+                # alarm's filled-in state drove its descent to 0.48 m/s instead of 0.2, seed 4).
+                # A thrust shortfall the P term was making up (a battery sag) is the vertical
+                # disturbance observer's, which carries on across the hand-over.
                 lim = self.pid_vz.integral_limit
-                last = self.pid_height.integral if handover_trim_only else self._last_az
-                self.pid_vz.reset(max(-lim, min(lim, last)))
+                self.pid_vz.reset(max(-lim, min(lim, self.pid_height.integral)))
+                self._vz_ref = None
             self.height_ref_m = None
-            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators, unwind=unwind_vertical)
+            # The integrator takes the speed's deviation from a reference model of the command (a
+            # first-order lag with the P term's own time constant, 1 / vz_kp), not from the
+            # command itself: a step of the command is the P term's to follow, and integrated it
+            # wound up a trim the vehicle overshot with (0.27 m/s for 0.2 after each inspection
+            # step, 1.5 s to unwind). A missing trim still shows as a lasting deviation, and at a
+            # steady command the model is the command: no steady error either way.
+            if self._vz_ref is None:
+                self._vz_ref = est.vz_m_s
+            self._vz_ref += (cmd.vz_m_s - self._vz_ref) * min(1.0, p.vz_kp_1_s * dt)
+            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators, unwind=unwind_vertical,
+                                    integrate=self._vz_ref - est.vz_m_s)
             trim = self.pid_vz.integral
         self.vertical_mode = mode
 

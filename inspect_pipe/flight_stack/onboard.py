@@ -144,7 +144,6 @@ class OnboardStack:
             # sensor lost: sank faster and faster onto a coaming). XY integrators stay frozen.
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm, accel_measured=accel,
-                handover_trim_only=alarm,
             )
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).
@@ -160,6 +159,10 @@ class OnboardStack:
                 # has gone (a battery sag ending at touchdown): shed it fast, or it hops off the
                 # floor and the next touchdown is taken at the top of the hop (safety campaign).
                 unwind_vertical=True,
+                # The disturbance observers run until touchdown, not frozen from the first tick of
+                # LANDING: a battery sag that ended mid-landing left the vertical one's +2.7 m/s^2
+                # in the thrust, the vehicle climbed back to 0.7 m, and the ramp began there.
+                accel_measured=accel if machine.touchdown_s is None else None,
             )
             names = tuple(n for n in names if n == "low_battery_land")
         self._last_thrust = setpoint.thrust_frac

@@ -36,9 +36,9 @@ DRIFT_CASES = [
     (1, 170, "campaign_s1_e00170_wall_push.yaml", 0.418),  # loss while braking from 0.8 m/s
     # every range sensor lost during the loss: braking (the lagging range rate was the speed),
     # at rest (the last noisy flow reading was carried on)
-    pytest.param(1, 1007, "campaign_s1_e01007_inspection_sweep.yaml", 0.389, marks=pytest.mark.xfail(
-        strict=True, reason="open on the honest simulator (issue 19): 0.39 m; range loss while braking, the attitude "
-        "estimate's braking transient (0.05-0.1 m/s^2 the in-flight bias has not seen) carried 2.6 s in mode -2")),
+    # (on the honest simulator 0.39 m, open until the vertical reference model and trim-only
+    # hand-over of issue 19's session 8: 0.26 m; not analysed why the vertical loop's change helps)
+    (1, 1007, "campaign_s1_e01007_inspection_sweep.yaml", 0.389),
     (1, 1367, "campaign_s1_e01367_corner_push.yaml", 0.351),
 ]
 

@@ -89,13 +89,18 @@ def test_steady_one_metre_per_second_is_tracked_within_five_percent():
     assert statistics.fmean(steady) == pytest.approx(1.0, rel=0.05)
 
 
-def test_inspection_mode_sweeps_laterally_at_the_paper_speed_within_a_hundredth(fly):
+def test_inspection_mode_sweeps_laterally_and_vertically_at_the_paper_speed_within_a_hundredth(fly):
     # GIVEN the Fig. 7 sweep (inspection mode, 0.2 m/s whatever the stick's amplitude)
     f = fly("fig7_inspection_sweep")
     # THEN the lateral passes fly 0.20 +- 0.01 m/s (0.188 / 0.190 before the observers' band)
     for t0, t1 in ((10.0, 15.5), (33.0, 35.5)):
         v = statistics.fmean(r.vel_true[1] for r in f.between(t0, t1))
         assert v == pytest.approx(-0.2, abs=0.01), (t0, t1)
+    # AND the vertical ones too, from 2 s after the stick (0.201 / 0.218 while the height loop's
+    # last output was handed over as trim and the speed integrator took the command's steps)
+    for t0, t1, sign in ((18.0, 20.5, 1), (28.5, 30.5, -1)):
+        v = statistics.fmean(r.vel_true[2] for r in f.between(t0, t1))
+        assert v == pytest.approx(0.2 * sign, abs=0.01), (t0, t1)
 
 
 def test_every_parameter_is_declared_with_unit_bounds_and_a_reason():
