@@ -337,13 +337,22 @@ class MAVStateUpdater:
                 # campaign, seed 1 e433). While turning, vx is carried on with the IMU instead.
                 turning = self._yaw is not None and self._turning(now)  # no heading known: Table I as is
                 vx, vy = (cx if turning else -self.front.rate), fflow.vy_m_s  # type: ignore[union-attr]
-            # The speed an alarm mode would carry on: the measured one blended with the IMU
-            # (complementary filter, ``alarm_carry_tau_s``). Carried from the last flow reading
+            # The horizontal speed is the measured one blended with the IMU (complementary
+            # filter, ``speed_blend_tau_s``): the IMU carries it between and through the
+            # measurements, which correct it at that time constant. The PX4Flow's output holds the
+            # body rotation its own gyro's scale error leaves in (scale x rate x distance): taken
+            # as it came, it closed a loop through the speed PID and the attitude (rolling at 6 Hz
+            # makes the flow read 0.3 m/s at 2 m, the PID rolls back) that diverged with height
+            # (fresh seed 20261126 e7: a 4 % scale error, unstable from 2 m, thrust cut to zero
+            # while the mixer's attitude-first collective climbed to 6.7 m). The filter passes 17 %
+            # of a 6 Hz error and leaves an in-flight accelerometer bias error of 0.03 m/s^2 as
+            # 0.005 m/s. The alarm modes carry on this speed: carried from the last flow reading
             # alone, that reading's noise (0.08 m/s at rest) became a steady speed error, and the
             # vehicle held "still" drifted 0.38 m while every range sensor was lost (safety
             # campaign, seed 1 e1367).
-            kc = min(1.0, dt / (p.alarm_carry_tau_s + dt)) if dt > 0.0 else 1.0
+            kc = min(1.0, dt / (p.speed_blend_tau_s + dt)) if dt > 0.0 else 1.0
             self._dr_v = (cx + (vx - cx) * kc, cy + (vy - cy) * kc)
+            vx, vy = self._dr_v
         else:
             # The accelerometer's bias, learnt on the floor, is removed first: carried with it, the
             # speed settles at bias x leak time, and the speed loop holding it at 0 flew the

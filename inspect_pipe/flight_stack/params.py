@@ -65,8 +65,9 @@ class EstimationParams:
     alarm_vz_leak_max_m_s2: float = param(
         0.01, 0.0, 1.0, "m/s^2", "alarm modes: the carried vertical speed's leak (alarm_speed_leak_s) removes at most this much per second"
     )
-    alarm_carry_tau_s: float = param(
-        0.3, 0.0, 5.0, "s", "outside the alarm modes, the speed they would carry on is the measured one blended with the IMU at this time constant"
+    speed_blend_tau_s: float = param(
+        0.15, 0.0, 5.0, "s", "horizontal speed: the measurement (flow, range rate) blended with the IMU at this time "
+        "constant; below the attitude loop's band, where the PX4Flow carries rotation (the alarm modes carry it on)"
     )
     alarm_slope_tau_s: float = param(
         0.3, 0.05, 5.0, "s", "alarm modes: the carried speed follows a horizontal sonar's range rate at this time constant"
