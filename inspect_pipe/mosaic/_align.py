@@ -15,10 +15,14 @@ Residuals are in image space, by pairwise transfer through the plane: each inlie
 Transfer was chosen over wall points as parameters because it leaves only the camera parameters
 (6 a frame) as unknowns: the trust-region steps are solved over ~1k unknowns instead of ~50k, and
 nothing has to be triangulated first. The solver is ``scipy.optimize.least_squares`` (trust region
-reflective, sparse Jacobian, ``x_scale='jac'``, Huber loss at 2 px so a false match costs linearly).
+reflective, LSMR steps, Huber loss at 2 px so a false match costs linearly).
 The Jacobian is built by forward differences done per frame role, vectorised over all
-correspondences (a row depends on two frames and the intrinsics only), and handed over as a sparse
-matrix with exactly that pattern.
+correspondences (a row depends on two frames and the intrinsics only), as a sparse matrix with
+exactly that pattern. The unknowns are preconditioned by a sparse factorisation of the Gauss-Newton
+matrix at the start (:func:`_preconditioner`): unpreconditioned, LSMR needed about one iteration per
+unknown for a step (a sweep is a long chain whose slow bending modes are nearly free), so the
+adjustment grew with the square of the sweep (a 2,000-frame sweep did not finish in 26 min); with
+it a step takes tens of iterations whatever the length.
 
 Gauge: image residuals do not see a similarity of the wall plane (pose model: the reference
 frame's in-plane rotation and translation are held) or any homography of the mosaic (homography
@@ -237,11 +241,45 @@ class _Problem:
         return J[:, np.flatnonzero(self.free)]
 
 
+def _preconditioner(J: sp.csr_matrix, r: np.ndarray, f_scale: float):
+    """Maps ``M``, ``M^T`` with ``M^T (J^T W J) M = I`` at the start point (``W``: the robust loss's
+    weights there): ``M = P U^-1 D^1/2`` from a sparse LU of the Gauss-Newton matrix, factored without
+    pivoting in symmetric mode (``P A P^T = L D L^T``, ``U = D L^T``). In the variables ``z`` of
+    ``x = x0 + M z`` the problem is well conditioned, so LSMR solves each trust-region step in a few
+    iterations instead of about one per unknown."""
+    from scipy.sparse.linalg import splu
+
+    w = np.minimum(1.0, f_scale / np.maximum(np.abs(r), 1e-12))  # Huber's weights (IRLS)
+    Jw = sp.diags(np.sqrt(w)) @ J
+    A = (Jw.T @ Jw).tocsc()
+    d = A.diagonal()
+    A = (A + sp.diags(1e-9 * np.maximum(d, 1e-12 * max(float(d.max()), 1e-300)))).tocsc()
+    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    s = np.sqrt(np.maximum(lu.U.diagonal(), 1e-300))
+    # U alone, as a factorisation of itself (no reordering, no pivoting): its solves run in SuperLU
+    tri = splu(lu.U.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    p = lu.perm_c  # P A P^T = L U with P[p[k], k] = 1: M v = P^T U^-1 D^1/2 v
+
+    def M(v: np.ndarray) -> np.ndarray:
+        return tri.solve(s * v)[p]
+
+    def MT(v: np.ndarray) -> np.ndarray:
+        w = np.empty_like(v)
+        w[p] = v
+        return s * tri.solve(w, trans="T")
+
+    return M, MT
+
+
 def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams) -> tuple[np.ndarray, Camera, int, bool]:
     """Robust sparse least squares from ``full0``; returns (frame parameters, camera, evaluations, converged)."""
+    from scipy.sparse.linalg import LinearOperator
+
     cache: dict = {}
 
     def fun(x):
+        if "x" in cache and np.array_equal(cache["x"], x):
+            return cache["r"].ravel()
         P, cam = prob.unpack(x, full0)
         r = prob.residuals(P, cam)
         cache["x"], cache["r"] = x.copy(), r
@@ -252,14 +290,28 @@ def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams) -> tuple[np.n
         r0 = cache["r"] if "x" in cache and np.array_equal(cache["x"], x) else prob.residuals(P, cam)
         return prob.jacobian(P, cam, r0)
 
-    # LSMR with tight tolerances: its default ones gave inexact steps that crawled (40 evaluations
-    # without converging on a 40-frame sweep); tight, the cost settles in 2-4 steps. The cost then
-    # runs along a flat valley (focal length against mean tilt), so ftol defaults to 1e-4.
-    sol = least_squares(fun, full0[prob.free], jac=jac, method="trf", loss=params.loss, f_scale=params.loss_scale_px,
-                        x_scale="jac", max_nfev=params.max_nfev, tr_solver="lsmr",
-                        tr_options={"atol": 1e-12, "btol": 1e-12, "regularize": False}, ftol=params.ftol, xtol=1e-10, gtol=1e-10)
-    P, cam = prob.unpack(sol.x, full0)
-    return P, cam, int(sol.nfev), bool(sol.status >= 0 and np.all(np.isfinite(sol.x)))  # 0: max_nfev reached, still usable
+    x0 = full0[prob.free]
+    r0 = fun(x0)
+    J0 = jac(x0)
+    M, MT = _preconditioner(J0, r0, params.loss_scale_px)
+    shape = (len(r0), len(x0))
+
+    def fun_z(z):
+        return fun(x0 + M(z))
+
+    def jac_z(z):
+        J = J0 if not np.any(z) else jac(x0 + M(z))
+        return LinearOperator(shape, matvec=lambda v: J @ M(np.ravel(v)), rmatvec=lambda u: MT(J.T @ np.ravel(u)), dtype=float)
+
+    # LSMR with tight tolerances (inexact steps crawled: 40 evaluations without converging on a
+    # 40-frame sweep), bounded: preconditioned, a step takes tens of iterations (synth_rust_sweep).
+    # The trust region is in the preconditioned variables, which already carry the Jacobian's scale.
+    sol = least_squares(fun_z, np.zeros(len(x0)), jac=jac_z, method="trf", loss=params.loss, f_scale=params.loss_scale_px,
+                        max_nfev=params.max_nfev, tr_solver="lsmr",
+                        tr_options={"atol": 1e-10, "btol": 1e-10, "maxiter": 200, "regularize": False}, ftol=params.ftol, xtol=1e-10, gtol=1e-10)
+    x = x0 + M(sol.x)
+    P, cam = prob.unpack(x, full0)
+    return P, cam, int(sol.nfev), bool(sol.status >= 0 and np.all(np.isfinite(x)))  # 0: max_nfev reached, still usable
 
 
 def _rows(frames: list[int], corr: Correspondences) -> tuple[np.ndarray, np.ndarray]:
@@ -387,13 +439,18 @@ def pair_errors(H: dict[int, np.ndarray], corr: Correspondences) -> np.ndarray:
     return np.maximum(np.hypot(r[:, 0], r[:, 1]), np.hypot(r[:, 2], r[:, 3]))
 
 
+def _pair_index(corr: Correspondences) -> tuple[np.ndarray, np.ndarray]:
+    """(pair keys (K, 2) sorted, each correspondence's row in them): one pass, linear in the correspondences."""
+    keys, inverse = np.unique(np.c_[corr.fi, corr.fj].astype(np.int64), axis=0, return_inverse=True)
+    return keys.reshape(-1, 2), inverse.ravel()
+
+
 def per_pair_rms(err: np.ndarray, corr: Correspondences) -> dict[tuple[int, int], float]:
-    keys = corr.fi.astype(np.int64) * 1_000_003 + corr.fj
-    out = {}
-    for key in np.unique(keys):
-        sel = keys == key
-        out[(int(corr.fi[sel][0]), int(corr.fj[sel][0]))] = float(np.sqrt(np.mean(err[sel] ** 2)))
-    return out
+    keys, inv = _pair_index(corr)
+    if not len(keys):
+        return {}
+    ms = np.bincount(inv, weights=err**2, minlength=len(keys)) / np.bincount(inv, minlength=len(keys))
+    return {(int(i), int(j)): float(np.sqrt(m)) for (i, j), m in zip(keys, ms)}
 
 
 def pose_errors(H: dict[int, np.ndarray], cam: Camera, corr: Correspondences) -> np.ndarray:
@@ -415,13 +472,15 @@ def _rms(err: np.ndarray, cut: float) -> float:
 
 def pairwise_rms(corr: Correspondences, pair_H: dict[tuple[int, int], np.ndarray]) -> float:
     """RMS of the correspondences under their own pair homographies: what no global model can beat."""
-    err = []
-    for (i, j), H in pair_H.items():
-        sel = (corr.fi == i) & (corr.fj == j)
-        if sel.any():
-            p = np.c_[corr.p[sel], np.ones(int(sel.sum()))] @ H.T
-            err.append(np.hypot(*(p[:, :2] / p[:, 2:3] - corr.q[sel]).T))
-    return float(np.sqrt(np.mean(np.concatenate(err) ** 2))) if err else 0.0
+    keys, inv = _pair_index(corr)
+    have = np.array([(int(i), int(j)) in pair_H for i, j in keys], dtype=bool)
+    if not have.any():
+        return 0.0
+    Hs = np.array([pair_H[(int(i), int(j))] if h else np.eye(3) for (i, j), h in zip(keys, have)])
+    sel = have[inv]
+    p = np.einsum("nij,nj->ni", Hs[inv[sel]], np.c_[corr.p[sel], np.ones(int(sel.sum()))])
+    err = np.hypot(*(p[:, :2] / p[:, 2:3] - corr.q[sel]).T)
+    return float(np.sqrt(np.mean(err**2)))
 
 
 def thin(corr: Correspondences, per_pair: int) -> Correspondences:
