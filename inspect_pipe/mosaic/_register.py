@@ -66,6 +66,7 @@ class RegisterParams:
     candidates_per_frame: int = 2
     low_texture_features: int = 150  # fewer keypoints than this make a frame texture-poor
     low_texture_share: float = 0.1  # this share of texture-poor frames switches the sweep to low-texture detection
+    texture_sample: int = 64  # evenly spaced frames detected first to estimate that share (each frame then decoded once)
     keyframe_step: float = 0.05  # of the frame diagonal: closer frames are attached, not aligned
     bridge_budget: int = 400  # unguided matches allowed for joining disconnected groups
     pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
@@ -285,19 +286,35 @@ class _Extracted:
     thumbnails: dict[int, np.ndarray]
 
 
+def _texture_sample(n: int, k: int) -> list[int]:
+    """Up to ``k`` evenly spaced frames (all of them when there are no more than ``k``)."""
+    return list(range(n)) if n <= k else sorted({int(round(t)) for t in np.linspace(0, n - 1, k)})
+
+
 def extract_features(source: FrameSource, prior, params: RegisterParams, workers: int, progress: Progress | None) -> _Extracted:
     """Load every frame once and detect its features (threads: OpenCV releases the GIL); frames
     off the survey, unreadable or of another size get a reason. When >= ``low_texture_share`` of
-    the frames are texture-poor, every frame is detected again on equalised images with a
-    sensitive detector: mixing the two preprocessings frame by frame breaks matching at the boundary."""
+    the frames are texture-poor, every frame is detected on equalised images with a sensitive
+    detector: mixing the two preprocessings frame by frame breaks matching at the boundary.
+
+    The share is first estimated on ``texture_sample`` evenly spaced frames, detected (and kept
+    in memory) before the others, so the remaining frames are decoded and detected once, with the
+    preprocessing chosen (the 752x480 scaling sweeps are texture-poor: detecting every frame twice
+    doubled their feature time). Should the whole sweep then cross the threshold the sample missed,
+    every frame is detected again."""
     n = len(source)
     feats: dict[int, Features] = {}
     unplaced: dict[int, str] = {}
     size_wh: tuple[int, int] | None = None
     vig = VignettingAccumulator()
     thumbs: dict[int, np.ndarray] = {}
+    kept: dict[int, np.ndarray] = {}  # the sample's grey frames, for a second detection without decoding
+    done = 0
 
-    def extract(i: int, mode: str):
+    def detect(gray: np.ndarray, mode: str) -> Features:
+        return detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale, mode=mode)
+
+    def extract(i: int, mode: str, keep: bool = False):
         why = prior.skip_reason(i) if prior is not None else ""
         if why:
             return i, why, None, None
@@ -308,12 +325,14 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
         gray = to_gray(img)
         small = cv2.resize(gray, THUMB_WH, interpolation=cv2.INTER_AREA)
         seam = cv2.resize(img, seam_size((img.shape[1], img.shape[0])), interpolation=cv2.INTER_AREA)
-        return i, "", (img.shape[1], img.shape[0]), (small, seam, detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale, mode=mode))
+        return i, "", (img.shape[1], img.shape[0]), (small, seam, detect(gray, mode), gray if keep else None)
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        for i, err, wh, out in pool.map(lambda i: extract(i, "normal"), range(n)):
+    def take(results) -> None:
+        nonlocal size_wh, done
+        for i, err, wh, out in results:
+            done += 1
             if progress:
-                progress("features", i + 1, n)
+                progress("features", done, n)
             if err:
                 unplaced[i] = err
                 continue
@@ -325,9 +344,24 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
             vig.add_thumbnail(out[0])
             thumbs[i] = out[1]
             feats[i] = out[2]
-    poor = [i for i, f in feats.items() if len(f) < params.low_texture_features]
-    if params.low_texture_share < 1 and len(poor) >= max(2, params.low_texture_share * len(feats)):
-        with ThreadPoolExecutor(max_workers=workers) as pool:
+            if out[3] is not None:
+                kept[i] = out[3]
+
+    def texture_poor(fs: dict[int, Features]) -> bool:
+        poor = sum(len(f) < params.low_texture_features for f in fs.values())
+        return params.low_texture_share < 1 and poor >= max(2, params.low_texture_share * len(fs))
+
+    sample = _texture_sample(n, params.texture_sample)
+    in_sample = set(sample)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        take(pool.map(lambda i: extract(i, "normal", keep=True), sample))
+        mode = "low_texture" if texture_poor(feats) else "normal"
+        if mode == "low_texture":
+            for i, f in zip(sorted(kept), pool.map(lambda i: detect(kept[i], "low_texture"), sorted(kept))):
+                feats[i] = f
+        kept.clear()
+        take(pool.map(lambda i: extract(i, mode), [i for i in range(n) if i not in in_sample]))
+        if mode == "normal" and texture_poor(feats):  # the sample missed it: every frame again
             for i, err, wh, out in pool.map(lambda i: extract(i, "low_texture"), sorted(feats)):
                 if progress:
                     progress("features (low texture)", i + 1, n)
@@ -370,6 +404,36 @@ class _Pairs:
                     self.progress("matching", k + 1, len(pairs))
                 (self.accepted if res else self.failures).append(res)
         return len(self.accepted) - before
+
+
+def chained_priors(frames: list[int], pairs: list[tuple[int, int]], accepted: list[PairMatch]) -> dict[tuple[int, int], np.ndarray]:
+    """For pairs (frames[a], frames[b]) further apart than neighbours, the homography a -> b chained
+    through the accepted pairs of consecutive frames between them (none where a link is missing)."""
+    step = {(e.i, e.j): e.H for e in accepted}
+    pos = {f: k for k, f in enumerate(frames)}
+    out = {}
+    for i, j in pairs:
+        H = np.eye(3)
+        for k in range(pos[i], pos[j]):
+            h = step.get((frames[k], frames[k + 1]))
+            if h is None:
+                break
+            H = h @ H
+        else:
+            if pos[j] - pos[i] > 1:
+                out[(i, j)] = H / H[2, 2]
+    return out
+
+
+def attempt_temporal(frames: list[int], pairs: _Pairs, params: RegisterParams) -> None:
+    """Temporal neighbour pairs: consecutive frames unguided, then those further apart guided by
+    the chain of consecutive pairs between them (a 1500x1500 unguided match cost about twice a
+    guided one)."""
+    temporal = [(frames[a], frames[b]) for a, b in temporal_pairs(len(frames), params.temporal_window)]
+    pos = {f: k for k, f in enumerate(frames)}
+    pairs.attempt([p for p in temporal if pos[p[1]] - pos[p[0]] == 1])
+    rest = [p for p in temporal if pos[p[1]] - pos[p[0]] > 1]
+    pairs.attempt(rest, chained_priors(frames, rest, pairs.accepted))
 
 
 def layout_rounds(frames: list[int], pairs: _Pairs, params: RegisterParams, rng: np.random.Generator) -> None:
@@ -497,7 +561,7 @@ def register(
         return Registration((0, 0), [], ex.unplaced, [], [], None)
     all_valid = valid = sorted(ex.feats)
     pairs = _Pairs(ex.feats, ex.size_wh, prior, params, workers, progress)
-    pairs.attempt([(valid[a], valid[b]) for a, b in temporal_pairs(len(valid), params.temporal_window)])
+    attempt_temporal(valid, pairs, params)
 
     # A slow vehicle at 10 Hz gives frames a few pixels apart: align and blend keyframes only,
     # and attach the frames between them through their chain of neighbour homographies.
