@@ -49,6 +49,12 @@ written).
 
   inspect-pipe capture --source replay:out/sweep1 -o out/sweep1_copy
 
+The live mosaic (on by default; --no-live-mosaic): each frame taken in inspection mode (every frame
+when the source has no vehicle state) is placed on a low-resolution mosaic on its own thread beside
+the writer; when it falls behind it skips frames, never the capture. The live line shows the share
+of the swept wall imaged at usable resolution and sharpness, the gaps, how far behind it is, and a
+stream that stalls (no frame for 3 s); the last line is its summary.
+
 Ctrl-C stops cleanly (the sweep gets its COMPLETE marker). Exit 0 when the sweep ended as asked
 (duration, end of the source), 1 when the camera was lost or writing failed (the sweep stays
 readable), 2 on bad input.

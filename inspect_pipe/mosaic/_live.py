@@ -11,7 +11,10 @@ hovering vehicle does not accumulate error; when that fails, to the previous pla
 that fails, to the keyframes nearest where the recent motion puts the camera (relocalisation);
 when that fails too and the vehicle's state gives a position, the frame is placed by odometry. A new
 keyframe is also matched to the nearest keyframe of an earlier stretch (the pass before): when
-that succeeds its placement wins, so drift along a pass stops at the next pass.
+that succeeds its placement wins, so drift along a pass stops at the next pass. Each new keyframe's
+scale and rotation are pulled part of the way to the sweep's level (the first frame's, the scale
+following the distance to the wall when the state gives it), so the small errors of each match do
+not add up along the chain (see :meth:`LiveMosaic._level`).
 
 Coverage: a mosaic cell is *covered* when a placed frame imaged it at usable resolution (frame
 scale within ``scale_range`` of the sweep's median) and sharpness (variance of the Laplacian of
@@ -47,6 +50,8 @@ class LiveParams:
     warmup: int = 5  # frames judged (usable or not) once this many are placed: the medians need them
     margin_px: int = 256  # the canvas grows by at least this many mosaic px
     seed: int = 0
+    equalise: bool = True  # local contrast (CLAHE) before ORB: a smooth, dull plate still gives corners
+    level_gain: float = 0.3  # a new keyframe's scale and rotation are pulled this share of the way to the level (see _level)
 
 
 def sharpness(gray: np.ndarray) -> float:
@@ -98,6 +103,7 @@ class LiveMosaic:
         self._work_wh = (max(int(round(w * self._k)), 1), max(int(round(h * self._k)), 1))
         self._orb = cv2.ORB_create(nfeatures=self.params.features, fastThreshold=self.params.fast_threshold, edgeThreshold=15, patchSize=15)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+        self._clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(4, 4))
         self._canvas = np.zeros((0, 0, 3), np.uint8)
         self._cover = np.zeros((0, 0), np.uint8)  # 1: seen, 2: seen usable
         self._origin = np.zeros(2)  # mosaic px of canvas pixel (0, 0)
@@ -110,6 +116,7 @@ class LiveMosaic:
         self._last_pos: tuple[np.ndarray, np.ndarray] | None = None  # (position m, H) of the last placed frame
         self._pending: list[tuple] = []  # placed frames of the warm-up, painted once judged
         self._usable_of: dict[int, bool] = {}
+        self._level_ref: tuple[float, float | None] | None = None  # (scale, distance to the wall) of the first frame
         self.placements: list[Placement] = []
         self.problems: list[str] = []
 
@@ -129,7 +136,7 @@ class LiveMosaic:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
         work = cv2.resize(gray, self._work_wh, interpolation=cv2.INTER_AREA)
         sharp = sharpness(work)
-        kps, desc = self._orb.detectAndCompute(work, None)
+        kps, desc = self._orb.detectAndCompute(self._clahe.apply(work) if self.params.equalise else work, None)
         kp = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
         cur = _Frame(index, kp, desc if desc is not None else np.zeros((0, 32), np.uint8), np.eye(3))
         how = "unplaced"
@@ -162,6 +169,11 @@ class LiveMosaic:
                 if closed is not None:  # placed against an earlier pass: the chain's drift stops here
                     H = cur.H = closed
                     how = "loop"
+                if how == "first":
+                    d = (state or {}).get("dist_front_m")
+                    self._level_ref = (float(np.sqrt(abs(np.linalg.det(H[:2, :2])))), float(d) if d else None)
+                elif how != "odometry":
+                    H = cur.H = self._level(H, state)
                 self._key = cur
                 self._keys.append(cur)
             self._prev = cur
@@ -189,6 +201,28 @@ class LiveMosaic:
         self.placements.append(p)
         return p
 
+    def _level(self, H: np.ndarray, state: dict | None) -> np.ndarray:
+        """Pull a new keyframe's scale and rotation a share ``level_gain`` of the way to the sweep's
+        level, keeping where its centre lies. Each match's small scale and rotation error would
+        otherwise add up along the chain of keyframes (a random walk: on a 240-frame sweep, frames
+        ended 4-5 % too large or small, or turned, and the coverage map's edges moved with them); the
+        camera holds its distance to the wall and its mount is level, so the first frame's scale
+        (times this distance / first distance, when the state gives the distance to the wall) and
+        rotation are the level. Relative placements stay as measured."""
+        a = self.params.level_gain
+        if a <= 0 or self._level_ref is None:
+            return H
+        s0, d0 = self._level_ref
+        d = (state or {}).get("dist_front_m")
+        target = s0 * (float(d) / d0) if d and d0 else s0  # farther: each frame covers more wall, more mosaic px
+        s = float(np.sqrt(abs(np.linalg.det(H[:2, :2]))))
+        th = float(np.arctan2(H[1, 0] - H[0, 1], H[0, 0] + H[1, 1]))
+        s2, th2 = float(np.exp((1 - a) * np.log(s) + a * np.log(target))), (1 - a) * th
+        R = s2 * np.array([[np.cos(th2), -np.sin(th2)], [np.sin(th2), np.cos(th2)]])
+        c = np.array([self._work_wh[0] / 2, self._work_wh[1] / 2, 1.0])
+        m = (H @ c)[:2] / (H @ c)[2]
+        return np.vstack([np.hstack([R, (m - R @ c[:2])[:, None]]), [0, 0, 1.0]])
+
     def _usable(self, sharp: float, scale: float) -> bool:
         med_sharp = float(np.percentile(self._sharp[-self.params.sharp_window:], 75))
         med_scale = float(np.median(self._scales[-200:]))
@@ -207,7 +241,7 @@ class LiveMosaic:
         self._canvas = np.zeros((0, 0, 3), np.uint8)
         self._cover = np.zeros((0, 0), np.uint8)
         self._origin = np.zeros(2)
-        self._key, self._prev, self._last_pos = None, None, None
+        self._key, self._prev, self._last_pos, self._level_ref = None, None, None, None
         self._keys, self._sharp, self._scales, self._pending = [], [], [], []
         self._usable_of = {}
 
@@ -240,16 +274,26 @@ class LiveMosaic:
 
     def _relocalise(self, cur: _Frame, index: int) -> np.ndarray | None:
         """After a failure: match the keyframes nearest to where the recent motion (last placed
-        frames' velocity, extrapolated over the frames since) puts the camera now."""
-        placed = [p for p in self.placements[-30:] if p.placed]
+        frames' velocity, extrapolated over the frames since, at most 3) puts the camera now; after
+        5 failures in a row, one of them a frame, in turn."""
+        placed = []
+        for p in reversed(self.placements):  # the last two placed, however long ago (not only among the last 30)
+            if p.placed:
+                placed.insert(0, p)
+                if len(placed) == 2:
+                    break
         if not self._keys or len(placed) < 2:
             return None
         c = np.array([self.frame_wh[0] / 2, self.frame_wh[1] / 2, 1.0])
         (i0, a), (i1, b) = [(p.index, p.H @ c) for p in placed[-2:]]
         a, b = a[:2] / a[2], b[:2] / b[2]
-        guess = b + (b - a) / max(i1 - i0, 1) * (index - i1)
+        guess = b + (b - a) / max(i1 - i0, 1) * min(index - i1, 3)  # not further: after a turn the old motion misleads
         d = np.array([np.linalg.norm(self._centre(k) - guess) for k in self._keys])
-        for k in np.argsort(d)[: self.params.relocalise_keys]:
+        near = np.argsort(d)[: 2 * self.params.relocalise_keys]
+        lost = index - i1 - 1  # frames not placed since the last placed one
+        # lost for long: one keyframe a frame, in turn among the nearest, so a lost track costs no more than a placed frame
+        tries = near[: self.params.relocalise_keys] if lost < 5 else [near[lost % len(near)]]
+        for k in tries:
             S = self._match(cur, self._keys[k])
             if S is not None:
                 return self._keys[k].H @ S
@@ -299,8 +343,12 @@ class LiveMosaic:
         if x1 <= x0 or y1 <= y0:
             return
         R = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]]) @ T @ H
-        warped = cv2.warpPerspective(small, R, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
-        mask = cv2.warpPerspective(np.full((h, w), 255, np.uint8), R, (x1 - x0, y1 - y0), flags=cv2.INTER_NEAREST) > 0
+        warped = cv2.warpPerspective(small, R, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # the frame's footprint, its corners rounded to the nearest cell and the cells on its edge included (the
+        # rule every footprint is drawn by, the truth's too); a warped mask would leave out the outer half cell
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.fillConvexPoly(mask, np.round(q - self._origin - (x0, y0)).astype(np.int32), 1)
+        mask = mask > 0
         roi = self._canvas[y0:y1, x0:x1]
         cov = self._cover[y0:y1, x0:x1]
         # a usable frame paints over anything; an unusable one only over what no usable frame covered

@@ -147,7 +147,8 @@ class LiveFeed:
                 self.m_per_px = float(st["dist_front_m"]) / float(camera.K[0, 0])
                 if self._live is not None:  # created from an earlier frame (no distance then)
                     self._live.m_per_px = self.m_per_px
-            self.submit(image, {"t_s": record.get("t_s"), "position_m": st.get("position_m")}, block=block)
+            self.submit(image, {"t_s": record.get("t_s"), "position_m": st.get("position_m"), "dist_front_m": st.get("dist_front_m")},
+                        block=block)
 
         return on_frame
 

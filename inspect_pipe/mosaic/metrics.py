@@ -194,3 +194,14 @@ def coverage_error(
             cv2.fillConvexPoly(truth, np.round(q).astype(np.int32), 1)
     area = max(int(seen.sum()), 1)
     return float((covered != (truth > 0)).sum() / area), float(truth.sum() / area)
+
+
+def coverage_error_sim(live, frames: list, max_blur_px: float = 2.0) -> tuple[float, float]:
+    """A live mosaic fed a simulated sweep's frames (``frames``: the sweep's FrameRecords it was fed,
+    in order) against the simulator's truth: each frame's true texture-to-frame homography, usable
+    when its true motion blur is at most ``max_blur_px``. Returns :func:`coverage_error`'s pair."""
+    H_gt = {k: np.linalg.inv(f.truth.H_wall_px_to_frame) for k, f in enumerate(frames)}
+    usable = {k for k, f in enumerate(frames) if (f.truth.motion_blur_px or 0.0) <= max_blur_px}
+    H_live = {p.index: p.H for p in live.placements if p.placed}
+    return coverage_error(live.covered(), live.origin_px, H_live, H_gt, usable, tuple(live.frame_wh))
+

@@ -46,7 +46,7 @@ def test_live_mosaic_places_every_frame_fast_and_maps_coverage(live_sweep):
     err, truth = coverage_error(live.covered(), live.origin_px, {p.index: p.H for p in live.placements},
                                 H_gt, set(H_gt) - blurred, FRAME_WH)
     assert truth > 0.9
-    assert err < 0.05, err
+    assert err < 0.03, err  # 3.6 % before keyframes were held to the level and footprints drawn as the truth is
     # AND the pictures have the same size, the coverage map marks gaps in red only where nothing usable was seen
     assert live.mosaic().shape == live.coverage().shape
     assert not (live.gaps() & live.covered()).any()

@@ -9,11 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from inspect_pipe.capture import CaptureConfig, ManualClock, MonotonicClock, run_capture
+from inspect_pipe.capture import CaptureConfig, ManualClock, MonotonicClock, read_sweep, run_capture
 from inspect_pipe.capture._source import Grab, SourceInfo
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.mosaic import LiveFeed, LiveMosaic
 from inspect_pipe.mosaic._live_feed import coverage_figures
+from inspect_pipe.mosaic.metrics import coverage_error_sim
 from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame, textured_wall
 
 FRAME_WH = (752, 480)
@@ -159,3 +160,7 @@ def test_capture_from_the_simulator_waits_for_the_live_mosaic(tmp_path):
     assert res.frames_written == 60 and st.skipped == 0 and 20 <= st.frames <= 32 and st.not_inspecting == 60 - st.frames
     assert st.placed >= st.frames - 2 and st.covered_pct > 80 and st.problem == "", st
     assert feed.m_per_px == pytest.approx(1.5 / (320 / 2 / np.tan(np.radians(30))), rel=0.3)
+    # AND its coverage map matches the simulator's truth (true homographies and motion blur of the frames it was fed)
+    frames = [f for f in read_sweep(tmp_path / "sw").frames if f.inspection_mode]
+    err, _ = coverage_error_sim(feed.live_mosaic(), frames)
+    assert len(frames) == st.frames and err < 0.03, err
