@@ -3,7 +3,9 @@
     python -m bench --only flight
 
 * Onboard tick time (estimation + behaviours + flight machine + control, one ``OnboardStack.tick``)
-  over whole paper scenarios: p50, p99, max. Goal: p99 < 0.5 ms.
+  over whole paper scenarios: p50, p99, max, wall clock and the thread's CPU time (on a shared,
+  loaded machine the wall clock's tail is the scheduler's, not the stack's; the load average is
+  reported with it). Goal: p99 < 0.5 ms.
 * Simulation speed, times real time, on one core, with and without writing the flight log.
   Goal: >= 50x.
 * Stop-line overshoot approaching the front wall at 0.4 m/s (the paper's Fig. 6) and 1 m/s, over
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import os
 import statistics
 import tempfile
 import time
@@ -23,6 +26,7 @@ from pathlib import Path
 from inspect_pipe.flight import FlightLogWriter, load_scenario, parse_scenario, run_scenario
 from inspect_pipe.flight.runner import SimParts
 from inspect_pipe.flight_stack import StackParams
+from inspect_pipe.flight_stack.onboard import OnboardStack
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"
@@ -58,6 +62,18 @@ def _overshoot_m(scenario, params: StackParams | None) -> float:
     return 1.0 - closest[0]
 
 
+class _CpuTimedStack(OnboardStack):
+    """The shipped stack, with each tick's thread CPU time recorded."""
+
+    cpu_s: list[float] = []
+
+    def tick(self, *args, **kwargs):
+        t0 = time.thread_time()
+        out = super().tick(*args, **kwargs)
+        self.cpu_s.append(time.thread_time() - t0)
+        return out
+
+
 def _pct(xs: list[float], q: float) -> float:
     xs = sorted(xs)
     return xs[min(len(xs) - 1, int(round(q * (len(xs) - 1))))]
@@ -72,9 +88,11 @@ def run(data: Path) -> str:  # data: unused, the scenarios ship with the code
     # Tick time and simulation speed over the paper's scenarios.
     ticks: list[float] = []
     rows = []
+    load0 = os.getloadavg()[0]
+    _CpuTimedStack.cpu_s = []
     for name in TICK_SCENARIOS:
         sc = load_scenario(SCENARIOS / f"{name}.yaml")
-        res = run_scenario(sc)
+        res = run_scenario(sc, make_stack=_CpuTimedStack)
         ticks.extend(res.tick_seconds)
         with tempfile.TemporaryDirectory() as tmp:
             writer = FlightLogWriter(Path(tmp) / "log.jsonl", sc, 50.0)
@@ -84,11 +102,16 @@ def run(data: Path) -> str:  # data: unused, the scenarios ship with the code
             wall = time.perf_counter() - t0
         rows.append((name, res.sim_time_s, res.speed_x_real_time, logged.sim_time_s / wall))
     us = [t * 1e6 for t in ticks]
+    cpu = [t * 1e6 for t in _CpuTimedStack.cpu_s]
+    load = max(load0, os.getloadavg()[0])
     w("### Onboard tick (estimation + behaviours + flight machine + control)\n\n")
-    w("| ticks | p50 | p99 | max | goal |\n|---:|---:|---:|---:|---|\n")
-    p99 = _pct(us, 0.99)
-    w(f"| {len(us)} | {_pct(us, 0.5):.0f} us | {p99:.0f} us | {max(us):.0f} us | p99 < 500 us: "
-      f"{'met' if p99 < 500 else 'NOT met'} |\n\n")
+    w("| clock | ticks | p50 | p99 | max | goal |\n|---|---:|---:|---:|---:|---|\n")
+    for label, xs in (("wall", us), ("thread CPU", cpu)):
+        p99 = _pct(xs, 0.99)
+        w(f"| {label} | {len(xs)} | {_pct(xs, 0.5):.0f} us | {p99:.0f} us | {max(xs):.0f} us | p99 < 500 us: "
+          f"{'met' if p99 < 500 else 'NOT met'} |\n")
+    w(f"\nLoad average during the run: {load:.1f} on {os.cpu_count()} cores (above the core count the wall "
+      "clock's tail and the simulation speed below measure the scheduler as much as the code).\n\n")
     w("### Simulation speed (one core)\n\n")
     w("| scenario | simulated | x real time | x real time with log |\n|---|---:|---:|---:|\n")
     for name, sim_s, x, xl in rows:
