@@ -1,6 +1,6 @@
 """Seam-aware multi-band blending with exposure compensation (OpenCV ``cv2.detail``).
 
-Two passes over the group's frames, one frame in memory at a time at full resolution:
+Two passes over the group's frames, a few frames in memory at a time at full resolution (prepared in threads ahead of the blender):
 1. at seam scale (about ``seam_megapix`` per frame): warp, estimate per-frame exposure
    gains from the overlaps (least squares, pairs only), find seams by dynamic programming on colour;
 2. at full scale: correct vignetting, warp, apply the gains, cut by the seam mask, feed the
@@ -22,7 +22,12 @@ from ._vignetting import Vignetting
 @dataclass(frozen=True)
 class BlendParams:
     seam_megapix: float = 0.01  # seam finding (DP, O(overlapping pairs)) at this size a frame: 0.02 took 3.7 s CPU of 6.2 on synth_rust_sweep, 0.01 2.0 s
-    blend_strength: float = 5.0  # blend width as % of sqrt(canvas area), as OpenCV's stitcher
+    blend_strength: float = 5.0  # blend width as % of sqrt(canvas area), as OpenCV's stitcher ...
+    # ... but at most this share of the frame diagonal: on a 30 m wall 5 % of the canvas is 300 px, 8 bands, and
+    # OpenCV's blender works on each frame's footprint grown by 3 x 2^bands px, 12x the frame (2.7x at 6 bands),
+    # so the blend grew faster than the sweep; synth_rust_sweep (80-86 px, 6 bands) is unchanged
+    max_blend_frame: float = 0.125
+    workers: int = 2  # threads preparing frames (decode, flat field, warp) ahead of the blender
     exposure: str = "gain"  # gain | none
     seam: str = "dp"  # dp | voronoi | none
     max_canvas_megapix: float = 600.0
@@ -133,32 +138,52 @@ def _tiles(canvas_wh: tuple[int, int], tile_px: int, margin: int):
             yield (x0, y0, x1, y1, max(x0 - margin, 0), max(y0 - margin, 0), min(x1 + margin, W), min(y1 + margin, H))
 
 
-def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh) -> None:
-    """Multi-band blend of the frames that reach one tile (with its margin) into ``out``."""
+def _prefetched(pool, fn, items: list, ahead: int):
+    """``fn`` over ``items`` in ``pool``, in order, at most ``ahead`` results waiting (bounded memory)."""
+    if pool is None:
+        yield from map(fn, items)
+        return
+    pending = []
+    for item in items:
+        pending.append(pool.submit(fn, item))
+        if len(pending) > ahead:
+            yield pending.pop(0).result()
+    for fut in pending:
+        yield fut.result()
+
+
+def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh, pool=None) -> None:
+    """Multi-band blend of the frames that reach one tile (with its margin) into ``out``; frames are
+    decoded and warped in ``pool`` (OpenCV releases the GIL) while the blender takes the previous ones."""
     cx0, cy0, cx1, cy1, mx0, my0, mx1, my1 = tile
     w, h = size_wh
     kernel = np.ones((3, 3), np.uint8)
     ones = np.full((h, w), 255, np.uint8)
-    blender = None
+    reach = []
     for k, f in enumerate(frames):
         rx, ry, rw, rh = rois[k]
         x0, y0, x1, y1 = max(rx, mx0), max(ry, my0), min(rx + rw, mx1), min(ry + rh, my1)
-        if x1 <= x0 or y1 <= y0:
-            continue
-        if blender is None:
-            blender = cv2.detail_MultiBandBlender(0, bands)
-            blender.prepare((mx0, my0, mx1 - mx0, my1 - my0))
-        sub = (x0, y0, x1 - x0, y1 - y0)
-        warped = _warp(prepared(f), Hc[f], sub)
+        if x1 > x0 and y1 > y0:
+            reach.append((k, f, x0, y0, x1, y1))
+    if not reach:
+        return
+
+    def warped(item):
+        k, f, x0, y0, x1, y1 = item
+        rx, ry, rw, rh = rois[k]
+        img = _warp(prepared(f), Hc[f], (x0, y0, x1 - x0, y1 - y0))
         # the frame's mask eroded on its whole footprint, then cut to the tile (no edge at the cut)
         mask = cv2.erode(_warp(ones, Hc[f], rois[k], cv2.INTER_NEAREST), kernel)[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
         if gains[k] != 1.0:
-            warped = cv2.convertScaleAbs(warped, alpha=float(gains[k]))
+            img = cv2.convertScaleAbs(img, alpha=float(gains[k]))
         seam = cv2.resize(cv2.dilate(seams[k], kernel), (rw, rh), interpolation=cv2.INTER_LINEAR_EXACT)
         seam = seam[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
-        blender.feed(warped.astype(np.int16), cv2.bitwise_and(seam, mask), (x0, y0))
-    if blender is None:
-        return
+        return img.astype(np.int16), cv2.bitwise_and(seam, mask), (x0, y0)
+
+    blender = cv2.detail_MultiBandBlender(0, bands)
+    blender.prepare((mx0, my0, mx1 - mx0, my1 - my0))
+    for img, mask, tl in _prefetched(pool, warped, reach, ahead=4):
+        blender.feed(img, mask, tl)
     result, result_mask = blender.blend(None, None)
     if isinstance(result, cv2.UMat):
         result, result_mask = result.get(), result_mask.get()
@@ -168,6 +193,14 @@ def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size
     dst[..., :3] = np.clip(result[core], 0, 255).astype(np.uint8)
     dst[..., 3] = result_mask[core]
     dst[dst[..., 3] == 0, :3] = 0
+
+
+class _no_pool:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc) -> bool:
+        return False
 
 
 def render(
@@ -244,10 +277,13 @@ def render(
 
     # Pass 2: full scale, tile by tile (each tile blended with the margin its pyramid needs, so
     # tiles join without a visible edge; memory is bounded by the tile, not by the wall)
-    blend_width = np.sqrt(canvas_wh[0] * canvas_wh[1]) * params.blend_strength / 100.0
+    blend_width = min(np.sqrt(canvas_wh[0] * canvas_wh[1]) * params.blend_strength / 100.0, params.max_blend_frame * np.hypot(w, h))
     bands = max(int(np.ceil(np.log2(max(blend_width, 2.0)))) - 1, 1)
     out = np.zeros((canvas_wh[1], canvas_wh[0], 4), np.uint8)
     rois = [_roi(Hc[f], size_wh, canvas_wh) for f in frames]
-    for tile in _tiles(canvas_wh, params.tile_px, 2 ** (bands + 1)):
-        _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=params.workers) if params.workers > 0 else _no_pool() as pool:
+        for tile in _tiles(canvas_wh, params.tile_px, 2 ** (bands + 1)):
+            _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh, pool)
     return out, Hc
