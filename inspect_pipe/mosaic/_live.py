@@ -45,7 +45,9 @@ class LiveParams:
     relocalise_keys: int = 4  # after a failure, this many keyframes nearest the extrapolated position are tried
     scale_range: float = 1.5  # usable if the frame's scale is within this factor of the sweep's median
     min_sharpness: float = 0.5  # usable if Laplacian variance >= this share of the recent frames' upper quartile
-    sharp_window: int = 40  # recent frames (seeing similar wall) whose upper quartile the sharpness is judged against
+    sharp_window: int = 40  # recent frames whose upper quartile the sharpness is judged against when too few saw the same wall
+    sharp_radius: float = 0.35  # frames placed within this share of the frame diagonal saw the same wall
+    min_sharpness_recent: float = 0.3  # and never below this share of the recent frames' upper quartile
     stall_s: float = 1.0  # a gap between frames longer than this is a stalled stream
     warmup: int = 5  # frames judged (usable or not) once this many are placed: the medians need them
     margin_px: int = 256  # the canvas grows by at least this many mosaic px
@@ -111,6 +113,7 @@ class LiveMosaic:
         self._keys: list[_Frame] = []
         self._prev: _Frame | None = None
         self._sharp: list[float] = []
+        self._centres: list[np.ndarray] = []  # mosaic centre of every placed frame, beside _sharp
         self._scales: list[float] = []
         self._last_t: float | None = None
         self._last_pos: tuple[np.ndarray, np.ndarray] | None = None  # (position m, H) of the last placed frame
@@ -179,12 +182,13 @@ class LiveMosaic:
             self._prev = cur
             self._sharp.append(sharp)
             self._scales.append(float(np.sqrt(abs(np.linalg.det(H[:2, :2])))))
+            self._centres.append(self._centre(cur))
             small = cv2.resize(image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR), self._work_wh,
                                interpolation=cv2.INTER_AREA)[..., :3]
-            self._pending.append((index, small, H, sharp, self._scales[-1]))
+            self._pending.append((index, small, H, sharp, self._scales[-1], self._centres[-1]))
             if len(self._sharp) >= self.params.warmup:
-                for k, sm, Hk, sh, sc in self._pending:
-                    ok = self._usable(sh, sc)
+                for k, sm, Hk, sh, sc, ce in self._pending:
+                    ok = self._usable(sh, sc, ce)
                     self._paint(sm, Hk, ok)
                     self._usable_of[k] = ok
                 self._pending = []
@@ -223,10 +227,18 @@ class LiveMosaic:
         m = (H @ c)[:2] / (H @ c)[2]
         return np.vstack([np.hstack([R, (m - R @ c[:2])[:, None]]), [0, 0, 1.0]])
 
-    def _usable(self, sharp: float, scale: float) -> bool:
-        med_sharp = float(np.percentile(self._sharp[-self.params.sharp_window:], 75))
+    def _usable(self, sharp: float, scale: float, centre: np.ndarray) -> bool:
+        """Sharp enough against the frames that saw the same wall (placed within ``sharp_radius`` of
+        the frame diagonal: the same texture, so a smoother stretch of plate is not mistaken for
+        blur), or the recent frames when fewer than 4 did; and never far below the recent frames (a
+        long run of blurred frames has only blurred neighbours)."""
+        recent = float(np.percentile(self._sharp[-self.params.sharp_window:], 75))
+        d = np.linalg.norm(np.asarray(self._centres) - centre, axis=1)
+        radius = self.params.sharp_radius * np.hypot(*self._work_wh) * float(np.median(self._scales[-50:]))
+        near = np.asarray(self._sharp)[d <= radius]
+        ref = float(np.percentile(near, 75)) if len(near) >= 4 else recent
         med_scale = float(np.median(self._scales[-200:]))
-        return sharp >= self.params.min_sharpness * med_sharp and (
+        return sharp >= self.params.min_sharpness * ref and sharp >= self.params.min_sharpness_recent * recent and (
             1 / self.params.scale_range <= scale / med_scale <= self.params.scale_range)
 
     def usable(self, index: int) -> bool:
@@ -242,7 +254,7 @@ class LiveMosaic:
         self._cover = np.zeros((0, 0), np.uint8)
         self._origin = np.zeros(2)
         self._key, self._prev, self._last_pos, self._level_ref = None, None, None, None
-        self._keys, self._sharp, self._scales, self._pending = [], [], [], []
+        self._keys, self._sharp, self._scales, self._pending, self._centres = [], [], [], [], []
         self._usable_of = {}
 
     def _first_H(self) -> np.ndarray:
