@@ -96,6 +96,46 @@ def _live(data: Path) -> list[str]:
     return rows
 
 
+def _stick(t: float, vy: float = 0.0, vz: float = 0.0) -> dict:
+    return {"t": t, "stick": {"vx": 0, "vy": vy, "vz": vz, "yaw_rate": 0}}
+
+
+# Simulator sweeps for the live mosaic besides scenarios/inspection_sweep_wall.yaml, over the shared wall photos
+# (texture width in metres, start, passes): a was looked at while choosing LiveParams.level_gain, b and c were not.
+LIVE_SIM_VARIANTS = {
+    "live_check_a": ("vt_original_train_130.jpeg", 4.5, (3.0, 3.5), 3, [10.5, 1.0, 0], [
+        {"t": 1.0, "button": "takeoff"}, {"t": 5.0, "button": "inspection_mode_on"}, _stick(6.0, vy=-0.25), _stick(17.0, vz=0.3),
+        _stick(20.5, vy=0.25), _stick(31.5, vz=0.3), _stick(35.0, vy=-0.25), _stick(46.0), {"t": 47.0, "button": "inspection_mode_off"},
+        {"t": 48.0, "button": "land"}], 56),
+    "live_check_b": ("vt_original_train_196.jpeg", 4.5, (3.0, 3.5), 7, [10.7, 0.8, 0], [
+        {"t": 1.0, "button": "takeoff"}, {"t": 5.0, "button": "inspection_mode_on"}, _stick(6.0, vy=-0.3), _stick(14.0, vz=0.3),
+        _stick(16.5, vy=0.3), _stick(24.5, vz=0.3), _stick(27.0, vy=-0.3), _stick(35.0, vz=0.3), _stick(37.5, vy=0.3), _stick(45.5),
+        {"t": 46.5, "button": "inspection_mode_off"}, {"t": 47.5, "button": "land"}], 52),
+    "live_check_c": ("vt_original_train_62.jpeg", 4.8, (2.8, 3.8), 21, [10.2, 0.6, 0], [
+        {"t": 1.0, "button": "takeoff"}, _stick(4.0, vz=0.3), _stick(7.0), {"t": 7.5, "button": "inspection_mode_on"},
+        _stick(8.0, vy=-0.2), _stick(20.0, vz=-0.25), _stick(23.0, vy=0.2), _stick(35.0, vz=-0.25), _stick(37.5, vy=-0.2), _stick(45.0),
+        {"t": 46.0, "button": "inspection_mode_off"}, {"t": 47.0, "button": "land"}], 50),
+}
+
+
+def live_sim_scenario(name: str, data: Path, work: Path) -> Path:
+    """Write one of ``LIVE_SIM_VARIANTS`` as a scenario file (the wall photo from the shared data, at its own size)."""
+    import yaml
+
+    photo, width_m, origin, seed, start, operator, duration = LIVE_SIM_VARIANTS[name]
+    image = data / "walls" / photo
+    w = cv2.imread(str(image)).shape[1]
+    doc = {"format": "inspect_pipe.scenario/1", "name": name, "duration_s": duration, "seed": seed,
+           "world": {"hold": {"length_m": 12, "width_m": 10, "height_m": 16},
+                     "front_wall_texture": {"image": str(image.resolve()), "m_per_px": width_m / w, "origin_uv": list(origin)}},
+           "vehicle": {"start": {"position": start, "yaw": 0}},
+           "camera": {"fps": 10, "width": 752, "height": 480, "hfov_deg": 60}, "operator": operator}
+    work.mkdir(parents=True, exist_ok=True)
+    path = work / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
 def live_sim_row(scenario: Path, work: Path) -> tuple[str, dict]:
     """The live mosaic as `capture --source sim:` runs it (a LiveFeed beside the writer, fed by the capture's tap:
     the frames taken in inspection mode), against the flight simulator's truth: each frame's true homography from
@@ -256,7 +296,8 @@ def run(data: Path) -> str:
     for name in ("synth_rust_sweep", "synth_rust_paint_sweep"):
         _synthetic(data, name, rows, notes, corner_rows)
     live = _live(data)
-    live_sim = [live_sim_row(SCENARIOS / "inspection_sweep_wall.yaml", WORK)[0]]
+    live_sim = [live_sim_row(SCENARIOS / "inspection_sweep_wall.yaml", WORK)[0]] + [
+        live_sim_row(live_sim_scenario(name, data, WORK), WORK)[0] for name in LIVE_SIM_VARIANTS]
     boat = _boat(data)
     npu = _npu(data)
     rov = _rov(data)
