@@ -394,7 +394,10 @@ def corrupt(fx: Fixture, work: Path, rng: np.random.Generator) -> Result:
     same = a.keys() == b.keys() and diff <= 0.5
     bad = whole_files(work / "m")
     ok = set(hit) <= unplaced and same and not bad
-    return Result("corrupt", True, ok, 0 if ok else 1,
+    # lost: an output not whole, or a good frame the sweep without the damaged ones places and this
+    # one does not (a placement beyond the tolerance is not recovered, but nothing is lost)
+    lost = len(bad) + len(b.keys() - a.keys())
+    return Result("corrupt", True, ok, lost,
                   f"{src.name}: frames {hit} ({', '.join(kinds)}), {len(set(hit) & unplaced)} unplaced, others within {diff:.3f} px"
                   + ("" if same else f"; placement differs from the sweep without them ({sorted(a.keys() ^ b.keys())})"))
 
