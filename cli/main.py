@@ -76,18 +76,22 @@ for _cmd in _detect.app.registered_commands:  # detect run / detect train: their
     _cmd.help = reflow(_cmd.help or _cmd.callback.__doc__ or "")
 _detect.app.info.help = reflow(_detect.app.info.help or "")
 app.add_typer(_detect.app, name="detect")
-app.command("fly", help=reflow(_fly.HELP))(_fly.fly)
-app.command("base-station", help=reflow(_base_station.HELP))(_base_station.base_station)
-app.command("capture", help=reflow(_capture.HELP))(_capture.capture)
-app.command("calibrate", help=reflow(_calibrate.HELP))(_calibrate.calibrate)
-app.command("doctor", help=reflow(_doctor.HELP))(_doctor.doctor)
-app.command("report", help=reflow(_report.HELP))(_report.report)
-app.command("run", help=reflow(_run.HELP))(_run.run)
-app.command("demo", help=reflow(_demo.HELP))(_demo.demo)
-app.command("campaign", help=reflow(_campaign.HELP))(_campaign.campaign)
-app.command("import", help=reflow(_import.HELP))(_import.import_)
-app.command("compare", help=reflow(_compare.HELP))(_compare.compare)
-app.command("review", help=reflow(_review.HELP))(_review.review)
+# each command with its module's HELP text, in the order --help lists them
+for _name, _module, _command in (
+    ("fly", _fly, _fly.fly),
+    ("base-station", _base_station, _base_station.base_station),
+    ("capture", _capture, _capture.capture),
+    ("calibrate", _calibrate, _calibrate.calibrate),
+    ("doctor", _doctor, _doctor.doctor),
+    ("report", _report, _report.report),
+    ("run", _run, _run.run),
+    ("demo", _demo, _demo.demo),
+    ("campaign", _campaign, _campaign.campaign),
+    ("import", _import, _import.import_),
+    ("compare", _compare, _compare.compare),
+    ("review", _review, _review.review),
+):
+    app.command(_name, help=reflow(_module.HELP))(_command)
 
 
 if __name__ == "__main__":  # pragma: no cover
