@@ -69,6 +69,10 @@ class RatingParams:
     min_imaged_fraction: float = 0.5  # an area less imaged than this is NOT RATED
     hard_rust_prob: float = 0.9  # corrosion pixels at least this probable count as hard rust scale
     edges_welds_pct: float | None = None  # measured elsewhere; None = not assessed (provisional)
+    # Percentages are reported to 0.1 %: a hard rust figure that rounds to 0.0 (under 0.05 %, about
+    # 3 cm^2 of a 0.7 m^2 plate field: condition-state speckle) counts as none, so a rating is never
+    # decided by a figure the report shows as 0.0.
+    hard_rust_none_below_pct: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -179,8 +183,9 @@ def rate_wall(
             if severity is not None:
                 s_im = severity[sl][im & corrosion[sl]]
                 sev = {k: round(100.0 * float((s_im == i + 1).sum()) / n_im, 2) for i, k in enumerate(("fair", "poor", "severe"))}
+            h_rated = h if h >= params.hard_rust_none_below_pct else 0.0
             areas.append(AreaRating(name, *box, n_im * cell_m**2, b, h, params.edges_welds_pct,
-                                    scheme.rate(b, h, params.edges_welds_pct), provisional, label, sev))
+                                    scheme.rate(b, h_rated, params.edges_welds_pct), provisional, label, sev))
     rated = [a for a in areas if a.rating != NOT_RATED]
     if not rated:
         return WallRating(scheme.name, NOT_RATED, provisional, None, tuple(areas), "no area imaged enough to rate")

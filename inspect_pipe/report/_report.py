@@ -173,6 +173,7 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
     else:
         hard = corr & (prob >= int(round(params.rating.hard_rust_prob * 255)))
         hard_rule = f"corrosion at least {params.rating.hard_rust_prob:g} probable (the engine has no condition states)"
+    hard_rule += f"; under {params.rating.hard_rust_none_below_pct:g} % of an area (shown as 0.0) counts as none"
     corr_g = grid.from_mosaic(corr.astype(np.uint8), wall) > 0
     hard_g = grid.from_mosaic(hard.astype(np.uint8), wall) > 0
     rating = rate_wall(coverage.usable, corr_g, hard_g, origin_uv_m=(grid.u0_m, grid.v_top_m), cell_m=grid.cell_m, params=params.rating,

@@ -109,3 +109,15 @@ def test_a_corrosion_entry_takes_the_state_of_most_of_its_pixels():
     s = entry_severity(d, sev)
     assert s["state"] == "severe"
     assert s["fractions"] == {"fair": 0.4, "poor": 0.0, "severe": 0.6}
+
+
+@pytest.mark.parametrize("hard_cells, expected", [(2, GOOD), (4, GOOD), (6, FAIR), (50, FAIR)])
+def test_hard_rust_that_rounds_to_zero_counts_as_none(hard_cells, expected):
+    # GIVEN a 1 m area (10,000 cells of 1 cm) with 1 % breakdown, of which a few cells are hard rust
+    imaged, corr = _grid({0: 1.0})
+    hard = np.zeros_like(corr)
+    hard.flat[np.flatnonzero(corr[:, :100].ravel())[:hard_cells]] = True  # cells inside the corrosion
+    r = rate_wall(imaged[:, :100], corr[:, :100], hard[:, :100], origin_uv_m=(0.0, 1.0), cell_m=0.01)
+    # THEN the figure is kept as measured, and under 0.05 % (shown as 0.0) it does not make the area FAIR
+    assert r.areas[0].hard_rust_pct == pytest.approx(hard_cells / 100, abs=1e-9)
+    assert r.areas[0].rating == expected
