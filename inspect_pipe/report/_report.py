@@ -186,6 +186,9 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "detector_engine": (model.get("engine") or "saliency") if model else None,
         "detector_engines": model.get("engines"),  # fused: the versions of the two engines it mixes
         "model_version": model.get("version"), "model_file": Path(str(model.get("file", ""))).name or None,
+        # the network whose head gave the condition states, when it is not the deciding one
+        "condition_states_model": (f"{Path(str(model['condition_states'].get('file', ''))).name} v{model['condition_states'].get('version')}"
+                                   if isinstance(model.get("condition_states"), dict) else None),
         "operating_points": model.get("operating_points"), "min_area_px": model.get("min_area_px"),
         "kinds": inp.detections.get("kinds"),
         "sweep_id": None if sweep is None else f"{Path(sweep.path).name} ({sweep.meta.created_utc or 'no date'})",
