@@ -82,49 +82,13 @@ def test_a_gap_in_telemetry_gives_no_state():
     assert tr.state_at(3.5) is None
 
 
-class _FakeAutopilot:
-    """A PX4-like autopilot on loopback UDP: HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED at 50 Hz along
-    a known path (x = 0.5 t north), TIMESYNC answered with its boot clock; ``die`` stops it."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.settimeout(0.01)
-        self.mav = C.MAVLink(None, srcSystem=1, srcComponent=1)
-        self.boot = time.monotonic() - 37.0  # booted 37 s ago
-        self.peer = None
-        self.die = threading.Event()
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.run, daemon=True)
-
-    def send(self, m) -> None:
-        self.sock.sendto(m.pack(self.mav), self.peer)
-
-    def run(self) -> None:
-        parser = C.MAVLink(None)
-        while not self.stop.is_set():
-            if self.die.is_set():
-                time.sleep(0.01)
-                continue
-            t = time.monotonic() - self.boot
-            ms = int(t * 1000)
-            self.send(C.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3))
-            self.send(C.MAVLink_attitude_message(ms, 0, 0, 0.0, 0, 0, 0))
-            self.send(C.MAVLink_local_position_ned_message(ms, 0.5 * t, 0.0, -1.0, 0.5, 0, 0))
-            try:
-                data, _ = self.sock.recvfrom(2048)
-                for m in parser.parse_buffer(data) or []:
-                    if m.get_type() == "TIMESYNC" and m.tc1 == 0:
-                        self.send(C.MAVLink_timesync_message(int((time.monotonic() - self.boot) * 1e9), m.ts1))
-            except (socket.timeout, OSError):
-                pass
-            time.sleep(0.02)
-
-
 def test_capture_stamps_frames_from_a_live_autopilot_and_survives_its_death(tmp_path):
     from inspect_pipe.capture import CaptureConfig, MonotonicClock, run_capture
     from inspect_pipe.capture._vehicle_feed import MavlinkStateFeed
     from inspect_pipe.capture.sources.replay import ReplaySource
     import cv2
+
+    from bench._faults import FakeAutopilot
 
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -135,9 +99,7 @@ def test_capture_stamps_frames_from_a_live_autopilot_and_survives_its_death(tmp_
     port_sock.bind(("127.0.0.1", 0))
     port = port_sock.getsockname()[1]
     port_sock.close()
-    ap = _FakeAutopilot()
-    ap.peer = ("127.0.0.1", port)
-    ap.thread.start()
+    ap = FakeAutopilot(("127.0.0.1", port))  # the fault bench's PX4-like sender: x = 0.5 t north at 50 Hz
     try:
         clock = MonotonicClock()
         feed = MavlinkStateFeed(f"udp:127.0.0.1:{port}", clock=clock.now)
@@ -152,8 +114,7 @@ def test_capture_stamps_frames_from_a_live_autopilot_and_survives_its_death(tmp_
         desc = feed.describe()
         feed.close()
     finally:
-        ap.stop.set()
-        ap.thread.join(2)
+        ap.close()
     lines = [json.loads(x) for x in (tmp_path / "sweep" / "frames.jsonl").read_text().splitlines()]
     with_state = [x for x in lines if x["state"] is not None]
     without = [x for x in lines if x["state"] is None]
