@@ -11,6 +11,7 @@ import numpy as np
 import inspect_pipe
 from inspect_pipe.errors import InputError
 
+from ._blas import with_one_blas_thread
 from ._blend import BlendParams, CanvasTooLarge, render
 from inspect_pipe._files import write_json, write_png
 from ._register import FrameSource, Registration, RegisterParams, register
@@ -47,6 +48,7 @@ def _image_name(group: int) -> str:
     return "mosaic.png" if group == 0 else f"mosaic_group{group}.png"
 
 
+@with_one_blas_thread
 def run_mosaic(
     source: FrameSource,
     out_dir: Path,

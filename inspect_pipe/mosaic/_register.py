@@ -13,6 +13,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
+from ._blas import with_one_blas_thread
 from ._blend import seam_size
 from ._align import AlignParams, Camera, Correspondences, align_group, quick_layout
 from ._features import Features, detect_features, to_gray
@@ -542,6 +543,7 @@ def unplaced_reasons(frames: list[int], groups: list[Group], failures: list[Pair
     return out
 
 
+@with_one_blas_thread
 def register(
     source: FrameSource,
     *,
