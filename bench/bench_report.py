@@ -180,6 +180,38 @@ def _true_imaged_fraction(sweep, grid, placed: set[int]) -> float:
     return float(img.mean())
 
 
+def imaged_truth(wall, sweep, placed: set[int]) -> list:
+    """Each true defect cut to the surveyed part of the wall: what the placed frames saw (their true
+    poses) less the register's edge band: area and centroid of that part, on the wall's texture
+    raster. Defects not surveyed are left out. The register measures an entry cut by the edge on its
+    surveyed part (``beyond_survey``), so this is the reference of the geolocation rows."""
+    from dataclasses import replace
+
+    from inspect_pipe.report import RegisterParams
+
+    labels = cv2.imread(str(wall.labels), cv2.IMREAD_UNCHANGED)
+    seen = np.zeros(labels.shape, np.uint8)
+    w, h = sweep.meta.width, sweep.meta.height
+    rect = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], float)
+    for i, f in enumerate(sweep.frames):
+        if i not in placed or f.truth is None or f.truth.H_wall_px_to_frame is None:
+            continue
+        c = rect @ np.linalg.inv(f.truth.H_wall_px_to_frame).T
+        cv2.fillConvexPoly(seen, np.round(c[:, :2] / c[:, 2:3] * 4).astype(np.int32), 1, shift=2)
+    # the register's surveyed region: the imaged wall less its edge band (RegisterParams.edge_margin_m)
+    e = max(1, int(round(RegisterParams().edge_margin_m / wall.m_per_px)))
+    seen = cv2.erode(seen, np.ones((2 * e + 1, 2 * e + 1), np.uint8), borderValue=0)
+    out = []
+    for t in wall.truth:
+        ys, xs = np.nonzero((labels == int(t.id.lstrip("T"))) & (seen > 0))
+        if len(xs) == 0:
+            continue
+        u = wall.origin_uv[0] + (xs.mean() + 0.5) * wall.m_per_px
+        v = wall.origin_uv[1] - (ys.mean() + 0.5) * wall.m_per_px
+        out.append(replace(t, centroid_wall_m=(float(u), float(v)), area_m2=float(len(xs) * wall.m_per_px ** 2)))
+    return out
+
+
 def run(data: Path) -> str:
     from inspect_pipe.pipeline import run_many, run_pipeline
     from inspect_pipe.pipeline._demo import DEMO_SURVEY, build_demo_wall, compare_with_truth
@@ -212,12 +244,14 @@ def run(data: Path) -> str:
         engine = json.loads((run2 / "detect" / "defects.json").read_text())["model"]["engine"]
         tr_dir = _truth_run(run2, wall, sweep)
         rep_t = report_from_run(RunStore(tr_dir), tr_dir / "report", ReportParams(pdf=False))
-        geo = compare_with_truth(rep_t.defects, wall.truth, wall=wall)
+        geo_whole = compare_with_truth(rep_t.defects, wall.truth, wall=wall)
         mdoc = json.loads((run2 / "mosaic" / "mosaic.json").read_text())
         rep = report_from_run(RunStore(run2), tmp / "rep_cov", ReportParams(pdf=False))
         placed = {v.index for v in rep.views}
         est = float(rep.coverage.imaged.mean())
         true = _true_imaged_fraction(sweep, rep.coverage.grid, placed)
+        seen_truth = imaged_truth(wall, sweep, placed)
+        geo = compare_with_truth(rep_t.defects, seen_truth, wall=wall)
 
         w("## Defect report and pipeline\n\n")
         w(f"Simulated inspection sweep over the demo wall ({wall.source}; {len(wall.truth)} known defects: "
@@ -233,11 +267,15 @@ def run(data: Path) -> str:
             return rows, ce, ae
 
         rows, ce, ae = errs(geo)
-        w(f"| geolocation: true masks found / known | {geo['matched']}/{geo['truth']} | all |\n")
+        w(f"| geolocation: true masks found / imaged (of {len(wall.truth)} known) | {geo['matched']}/{geo['truth']} | all |\n")
         if ce:
-            w(f"| geolocation: centroid error median / max | {100 * np.median(ce):.1f} / {100 * max(ce):.1f} cm | <= 5 cm |\n")
+            w(f"| geolocation: centroid error median / max (imaged part of each true mask) | {100 * np.median(ce):.1f} / {100 * max(ce):.1f} cm | <= 5 cm |\n")
         if ae:
-            w(f"| geolocation: corrosion area error median / max | {100 * np.median(ae):.1f} / {100 * max(ae):.1f} % | <= 15 % |\n")
+            w(f"| geolocation: corrosion area error median / max (imaged part) | {100 * np.median(ae):.1f} / {100 * max(ae):.1f} % | <= 15 % |\n")
+        _, ce_w, ae_w = errs(geo_whole)
+        if ce_w and ae_w:
+            w(f"| the same against each whole true mask (a defect only partly in view counts as mislocated) | "
+              f"{100 * np.median(ce_w):.1f} / {100 * max(ce_w):.1f} cm; {100 * np.median(ae_w):.1f} / {100 * max(ae_w):.1f} % | |\n")
         w(f"| coverage: imaged fraction, mosaic vs true poses | {100 * est:.1f} % vs {100 * true:.1f} % (error {100 * abs(est - true):.2f} % of the wall) | <= 2 % |\n")
         rows, ce, ae = errs(det)
         w(f"| detector register ({engine} engine): known defects found | {det['matched']}/{det['truth']} ({det['false_alarms']} other entries) | |\n")
@@ -292,9 +330,11 @@ def run(data: Path) -> str:
           + "). This machine's "
           "2 cores are shared with other benchmarks, so timings and the Dask speed-up are upper and lower bounds. "
           "A register entry counts for a known defect when its centroid lies within 15 cm of that defect's true "
-          "mask (the entries of one defect are its pieces: their areas add up; `compare_with_truth`); a known "
-          "defect only partly in view is compared with its whole true outline, which inflates the worst centroid "
-          "and area errors.\n")
+          "mask (the entries of one defect are its pieces: their areas add up; `compare_with_truth`). The "
+          "geolocation rows compare with the surveyed part of each true mask (seen by the placed frames at their true "
+          "poses, less the register's 2 cm edge band; `imaged_truth`): an entry the edge cuts is measured on its "
+          "surveyed part and marked as going on beyond the survey; "
+          "the row after them gives the whole outlines. The detector rows use the whole outlines.\n")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out.getvalue()

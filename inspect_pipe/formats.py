@@ -235,6 +235,7 @@ class RegisterEntry(_Open):
     location: dict[str, Any] | None = None
     detected_class: str | None = None
     severity: dict[str, Any] | None = None
+    beyond_survey: bool = False  # the detection goes on past the surveyed region's edge: area of the surveyed part
 
 
 class RegisterJson(_Open):

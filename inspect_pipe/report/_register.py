@@ -22,7 +22,7 @@ STATUSES = ("suggested", "confirmed", "rejected")
 REGISTER_FORMAT = "inspect_pipe.defect_register/1"
 CSV_COLUMNS = ("id", "class", "status", "note", "u_m", "v_m", "area_m2", "length_m", "confidence",
                "frame_range", "height_above_tank_top_m", "severity", "location", "wall", "frame", "from_centreline_m", "side",
-               "n_frames", "frames", "polygon_wall_m")
+               "n_frames", "frames", "polygon_wall_m", "beyond_survey")
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,9 @@ class Defect:
     location: dict | None = None  # in ship terms (inspect_pipe.ship.Location.to_json); None without a survey plan
     detected_cls: str | None = None  # the detector's class when a surveyor reclassified the entry (``cls`` is then theirs)
     severity: dict | None = None  # corrosion with condition states: {"state": fair|poor|severe, "fractions": {...}}
+    # the detection goes on past the edge of the surveyed region (the mosaic, less edge_margin_m):
+    # the area, box and centroid are of the surveyed part only, the area a lower bound
+    beyond_survey: bool = False
 
     def to_json(self) -> dict:
         r = lambda x: round(float(x), 4)  # noqa: E731
@@ -92,6 +95,7 @@ class Defect:
             "bbox_mosaic_xywh": list(self.bbox_mosaic_xywh), "area_px": self.area_px,
             "redetected": self.redetected, "crop": self.crop, "context": self.context, "crop_frame": self.crop_frame,
             "location": self.location, "detected_class": self.detected_cls, "severity": self.severity,
+            "beyond_survey": self.beyond_survey,
         }
 
     @classmethod
@@ -116,6 +120,7 @@ class Defect:
                 location=d.get("location") if isinstance(d.get("location"), dict) else None,
                 detected_cls=str(d["detected_class"]) if d.get("detected_class") else None,
                 severity=d.get("severity") if isinstance(d.get("severity"), dict) else None,
+                beyond_survey=d.get("beyond_survey") is True,
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(where, f"defect {d.get('id', '?')!r}: field {err} missing or malformed") from None
@@ -212,6 +217,9 @@ def build_defects(
         e = max(1, int(round(params.edge_margin_m / wall.m_per_px)))
         valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * e + 1, 2 * e + 1), np.uint8), borderValue=0) > 0
     for c in sorted(masks):
+        # detected pixels the edge of the surveyed region cut off: an entry joined to them goes on
+        # beyond the survey (within merge_gap_m, as fragments are joined)
+        cut = None if valid is None else (masks[c] & ~valid)
         m = masks[c] if valid is None else masks[c] & valid
         if not m.any():
             continue
@@ -265,6 +273,14 @@ def build_defects(
                     seen.append(idx)
                     if wm[ty0:ty0 + near.shape[0], tx0:tx0 + near.shape[1]][near].any():
                         det.append(idx)
+            beyond = False
+            if cut is not None:
+                g = r + 1
+                by0, bx0 = max(0, y - g), max(0, x - g)
+                grown = np.zeros((min(m.shape[0], y + h + g) - by0, min(m.shape[1], x + w + g) - bx0), np.uint8)
+                grown[y - by0:y - by0 + h, x - bx0:x - bx0 + w] = labels[y:y + h, x:x + w] == k
+                grown = cv2.dilate(grown, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))) > 0
+                beyond = bool(cut[by0:by0 + grown.shape[0], bx0:bx0 + grown.shape[1]][grown].any())
             u0, v0 = poly_m.min(0)
             u1, v1 = poly_m.max(0)
             defects.append(Defect(
@@ -275,6 +291,7 @@ def build_defects(
                 polygon_mosaic_px=tuple(map(tuple, poly.astype(int).tolist())), bbox_mosaic_xywh=(int(x), int(y), int(w), int(h)),
                 area_px=area_px, frame_range=survey.frame_range(float(u0), float(u1)),
                 height_above_tank_top_m=survey.height_above_tank_top(float(cent_m[1])),
+                beyond_survey=beyond,
             ))
     return defects
 
@@ -368,6 +385,7 @@ def register_csv(defects: list[Defect], position_decimals: int = 4) -> str:
             f"{d.area_m2:.4f}" if d.area_m2 >= 1e-3 else f"{d.area_m2:.5f}", "" if d.length_m is None else f"{d.length_m:.2f}", f"{d.confidence:.2f}",
             d.frame_range or "", "" if d.height_above_tank_top_m is None else f"{d.height_above_tank_top_m:.{p}f}",
             (d.severity or {}).get("state", ""), *_location_cells(d.location), len(d.frames), _ranges(d.frames), json.dumps([[round(u, 4), round(v, 4)] for u, v in d.polygon_wall_m]),
+            "yes" if d.beyond_survey else "",
         ])
     return buf.getvalue()
 

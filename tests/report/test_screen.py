@@ -182,3 +182,28 @@ def test_a_keyframe_that_found_the_defect_a_few_mm_off_confirms_it():
     for kf, found in (([(0, shifted), (1, shifted)], 2), ([(0, far), (1, far)], 0)):
         cands = build_defects(masks, probs, WALL, views, Survey(), keyframe_masks={"corrosion": kf}, params=RegisterParams())
         assert len(cands) == 1 and len(cands[0].keyframes_detected) == found and len(cands[0].keyframes_seen) == 2
+
+
+def test_an_entry_cut_by_the_imaged_walls_edge_is_marked_beyond_the_survey_with_its_surveyed_area():
+    """A rust patch the imaged wall's edge cuts keeps the surveyed part's area and says it goes on
+    past the edge (its area is a lower bound); one well inside is not marked."""
+    import cv2
+
+    valid = np.zeros((H, W), bool)
+    valid[:, :800] = True  # the mosaic ends at x = 800 px (u = 1.6 m)
+    mask = np.zeros((H, W), np.uint8)
+    cv2.circle(mask, (790, 300), 40, 255, -1)  # 8 cm radius, its centre 1 cm inside the edge
+    cv2.circle(mask, (300, 300), 40, 255, -1)
+    masks = {"corrosion": (mask > 0) & valid}  # the detector saw only the imaged part
+    probs = {"corrosion": np.where(masks["corrosion"], 230, 8).astype(np.uint8)}
+    views = [FrameView(0, np.eye(3), (W, H))]
+    out = build_defects(masks, probs, WALL, views, Survey(), valid=valid, params=RegisterParams())
+    by_u = sorted(out, key=lambda d: d.centroid_wall_m[0])
+    assert len(by_u) == 2
+    inside, cut = by_u
+    assert not inside.beyond_survey and cut.beyond_survey
+    full = np.pi * (40 * S) ** 2
+    assert inside.area_m2 == pytest.approx(full, rel=0.05)
+    # the register leaves out the 2 cm (10 px) band along the edge: what stays is the part left of x = 790
+    assert cut.area_m2 < 0.55 * full and cut.area_m2 > 0.4 * full
+    assert cut.to_json()["beyond_survey"] is True
