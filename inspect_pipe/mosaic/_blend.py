@@ -15,7 +15,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ._pairs import footprint, layout_pairs
+from ._pairs import footprint, layout_pairs, overlap_fraction
 from ._vignetting import Vignetting
 
 
@@ -32,6 +32,9 @@ class BlendParams:
     seam: str = "dp"  # dp | voronoi | none
     max_canvas_megapix: float = 600.0
     tile_px: int = 4096  # full-scale blending in tiles of at most this side (plus the pyramid's margin)
+    # frames blended whole: in frame order, a frame overlapping the last one kept by more than this share is left out,
+    # but for the wall no kept frame sees (_blend_set); 1.0 blends every frame whole
+    blend_overlap: float = 0.6
 
 
 class CanvasTooLarge(ValueError):
@@ -129,6 +132,59 @@ def seam_size(size_wh: tuple[int, int], seam_megapix: float = BlendParams.seam_m
     return max(int(round(w * sc)), 1), max(int(round(h * sc)), 1)
 
 
+def _shrunk(q: np.ndarray, d: float) -> np.ndarray:
+    """A convex quadrilateral's corners moved ``d`` px toward its centroid."""
+    c = q.mean(axis=0)
+    v = q - c
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    return c + v * np.maximum(n - d, 0) / np.maximum(n, 1e-9)
+
+
+_KERNEL = np.ones((3, 3), np.uint8)
+
+
+def _footprint_mask(Hc: np.ndarray, size_wh: tuple[int, int], roi: tuple[int, int, int, int]) -> np.ndarray:
+    """The frame's mask in ``roi`` of the canvas, eroded by 1 px (what the blender is fed)."""
+    return cv2.erode(_warp(np.full(size_wh[::-1], 255, np.uint8), Hc, roi, cv2.INTER_NEAREST), _KERNEL)
+
+
+def _blend_set(frames: list[int], Hc: dict[int, np.ndarray], size_wh: tuple[int, int], canvas_wh: tuple[int, int],
+               max_overlap: float, margin_px: float = 2.0) -> tuple[list[int], dict[int, tuple[int, int, np.ndarray]]]:
+    """The frames to blend, and the slivers of the others. In order, a frame is left out while it overlaps the last
+    frame kept by more than ``max_overlap`` of its area. Where a frame left out sees wall that no kept frame does
+    (inside a kept frame's footprint by ``margin_px``: a sweep's edges, its turns), that sliver of it is blended too
+    (frame -> (x, y, mask) in canvas px, the mask cut to its bounding box), so the mosaic covers what all frames cover.
+    On a sweep at 10 Hz most of a frame is in its neighbours: synth_rust_sweep (40 px steps on 512 px frames) blends
+    36 of its 189 frames whole, and the seams and the blender, which grow with the frames' overlapping area, take a
+    fraction of the time. The alignment is not touched: every frame keeps its homography."""
+    if max_overlap >= 1.0 or len(frames) <= 2:
+        return list(frames), {}
+    quads = {f: footprint(Hc[f], size_wh) for f in frames}
+    kept = [frames[0]]
+    for f in frames[1:]:
+        if overlap_fraction(quads[f], quads[kept[-1]]) < max_overlap:
+            kept.append(f)
+    keep = set(kept)
+    # corners moved 2 * margin toward the centroid: a near-rectangle's edges move in by more than the margin
+    inner = {f: _shrunk(quads[f].astype(np.float64), 2.0 * margin_px) for f in kept}
+    kbox = np.array([np.concatenate([quads[k].min(axis=0), quads[k].max(axis=0)]) for k in kept])
+    slivers: dict[int, tuple[int, int, np.ndarray]] = {}
+    for f in frames:
+        if f in keep:
+            continue
+        x0, y0, rw, rh = _roi(Hc[f], size_wh, canvas_wh)
+        own = _footprint_mask(Hc[f], size_wh, (x0, y0, rw, rh))
+        covered = np.zeros_like(own)
+        near = np.flatnonzero((kbox[:, 2] >= x0) & (kbox[:, 0] <= x0 + rw) & (kbox[:, 3] >= y0) & (kbox[:, 1] <= y0 + rh))
+        for i in near:
+            cv2.fillConvexPoly(covered, np.round((inner[kept[i]] - (x0, y0)) * 16).astype(np.int32), 255, cv2.LINE_8, 4)
+        left = cv2.bitwise_and(own, cv2.bitwise_not(covered))
+        if cv2.countNonZero(left):
+            bx, by, bw, bh = cv2.boundingRect(left)
+            slivers[f] = (x0 + bx, y0 + by, left[by : by + bh, bx : bx + bw].copy())
+    return kept, slivers
+
+
 def _tiles(canvas_wh: tuple[int, int], tile_px: int, margin: int):
     """(core x0, y0, x1, y1, with-margin x0, y0, x1, y1) of each tile of the canvas."""
     W, H = canvas_wh
@@ -152,33 +208,25 @@ def _prefetched(pool, fn, items: list, ahead: int):
         yield fut.result()
 
 
-def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh, pool=None) -> None:
-    """Multi-band blend of the frames that reach one tile (with its margin) into ``out``; frames are
-    decoded and warped in ``pool`` (OpenCV releases the GIL) while the blender takes the previous ones."""
+def _blend_tile(out, tile, bands, feeds, Hc, prepared, pool=None) -> None:
+    """Multi-band blend of what reaches one tile (with its margin) into ``out``. ``feeds``: (frame, canvas roi
+    (x, y, w, h), gain, mask(x0, y0, x1, y1) -> uint8 mask of that canvas region). Frames are decoded and warped in
+    ``pool`` (OpenCV releases the GIL) while the blender takes the previous ones."""
     cx0, cy0, cx1, cy1, mx0, my0, mx1, my1 = tile
-    w, h = size_wh
-    kernel = np.ones((3, 3), np.uint8)
-    ones = np.full((h, w), 255, np.uint8)
     reach = []
-    for k, f in enumerate(frames):
-        rx, ry, rw, rh = rois[k]
+    for f, (rx, ry, rw, rh), gain, mask in feeds:
         x0, y0, x1, y1 = max(rx, mx0), max(ry, my0), min(rx + rw, mx1), min(ry + rh, my1)
         if x1 > x0 and y1 > y0:
-            reach.append((k, f, x0, y0, x1, y1))
+            reach.append((f, gain, mask, x0, y0, x1, y1))
     if not reach:
         return
 
     def warped(item):
-        k, f, x0, y0, x1, y1 = item
-        rx, ry, rw, rh = rois[k]
+        f, gain, mask, x0, y0, x1, y1 = item
         img = _warp(prepared(f), Hc[f], (x0, y0, x1 - x0, y1 - y0))
-        # the frame's mask eroded on its whole footprint, then cut to the tile (no edge at the cut)
-        mask = cv2.erode(_warp(ones, Hc[f], rois[k], cv2.INTER_NEAREST), kernel)[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
-        if gains[k] != 1.0:
-            img = cv2.convertScaleAbs(img, alpha=float(gains[k]))
-        seam = cv2.resize(cv2.dilate(seams[k], kernel), (rw, rh), interpolation=cv2.INTER_LINEAR_EXACT)
-        seam = seam[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
-        return img.astype(np.int16), cv2.bitwise_and(seam, mask), (x0, y0)
+        if gain != 1.0:
+            img = cv2.convertScaleAbs(img, alpha=float(gain))
+        return img.astype(np.int16), mask(x0, y0, x1, y1), (x0, y0)
 
     blender = cv2.detail_MultiBandBlender(0, bands)
     blender.prepare((mx0, my0, mx1 - mx0, my1 - my0))
@@ -193,6 +241,26 @@ def _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size
     dst[..., :3] = np.clip(result[core], 0, 255).astype(np.uint8)
     dst[..., 3] = result_mask[core]
     dst[dst[..., 3] == 0, :3] = 0
+
+
+def _seam_mask(Hc: np.ndarray, size_wh: tuple[int, int], roi: tuple[int, int, int, int], seam: np.ndarray):
+    """mask(x0, y0, x1, y1) of a blended frame: its footprint (eroded 1 px, on the whole footprint so a tile's cut
+    makes no edge) cut by its seam mask (found at seam scale, dilated 1 px, resized)."""
+    rx, ry, rw, rh = roi
+
+    def mask(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        inside = _footprint_mask(Hc, size_wh, roi)[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
+        cut = cv2.resize(cv2.dilate(seam, _KERNEL), (rw, rh), interpolation=cv2.INTER_LINEAR_EXACT)[y0 - ry : y1 - ry, x0 - rx : x1 - rx]
+        return cv2.bitwise_and(cut, inside)
+
+    return mask
+
+
+def _sliver_mask(x: int, y: int, sliver: np.ndarray):
+    def mask(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        return sliver[y0 - y : y1 - y, x0 - x : x1 - x]
+
+    return mask
 
 
 class _no_pool:
@@ -225,7 +293,6 @@ def render(
     frames = sorted(Hc)
     w, h = size_wh
     gain = vignetting.gain(size_wh) if vignetting is not None else None
-    ones = np.full((h, w), 255, np.uint8)
 
     def prepared(f: int) -> np.ndarray:
         img = _as_bgr(load(f))
@@ -263,27 +330,36 @@ def render(
         gains = exposure_gains(frames, corners_s, imgs_s, masks_s, layout_pairs(
             {f: S @ Hc[f] @ Sin for f in frames}, small_wh, tried=set(), min_overlap=0.05, per_frame=8))
 
-    if params.seam == "dp" and len(frames) > 1:
+    # seams and the full-scale blend over the frames that add something (exposure gains above over all frames)
+    blend, slivers = _blend_set(frames, Hc, size_wh, canvas_wh, params.blend_overlap)
+    pos = {f: k for k, f in enumerate(frames)}
+    imgs_b, corners_b, masks_b = [imgs_s[pos[f]] for f in blend], [corners_s[pos[f]] for f in blend], [masks_s[pos[f]] for f in blend]
+    if params.seam == "dp" and len(blend) > 1:
         finder = cv2.detail_DpSeamFinder("COLOR")
-        seams = finder.find([im.astype(np.float32) for im in imgs_s], corners_s, [cv2.UMat(m) for m in masks_s])
+        seams = finder.find([im.astype(np.float32) for im in imgs_b], corners_b, [cv2.UMat(m) for m in masks_b])
         seams = [s.get() if isinstance(s, cv2.UMat) else s for s in seams]
-    elif params.seam == "voronoi" and len(frames) > 1:
+    elif params.seam == "voronoi" and len(blend) > 1:
         finder = cv2.detail.SeamFinder_createDefault(cv2.detail.SeamFinder_VORONOI_SEAM)
-        seams = finder.find([im.astype(np.float32) for im in imgs_s], corners_s, [cv2.UMat(m) for m in masks_s])
+        seams = finder.find([im.astype(np.float32) for im in imgs_b], corners_b, [cv2.UMat(m) for m in masks_b])
         seams = [s.get() if isinstance(s, cv2.UMat) else s for s in seams]
     else:
-        seams = masks_s
-    del imgs_s
+        seams = masks_b
+    del imgs_s, imgs_b
 
     # Pass 2: full scale, tile by tile (each tile blended with the margin its pyramid needs, so
     # tiles join without a visible edge; memory is bounded by the tile, not by the wall)
     blend_width = min(np.sqrt(canvas_wh[0] * canvas_wh[1]) * params.blend_strength / 100.0, params.max_blend_frame * np.hypot(w, h))
     bands = max(int(np.ceil(np.log2(max(blend_width, 2.0)))) - 1, 1)
     out = np.zeros((canvas_wh[1], canvas_wh[0], 4), np.uint8)
-    rois = [_roi(Hc[f], size_wh, canvas_wh) for f in frames]
+    feeds = []
+    for k, f in enumerate(blend):
+        roi = _roi(Hc[f], size_wh, canvas_wh)
+        feeds.append((f, roi, gains[pos[f]], _seam_mask(Hc[f], size_wh, roi, seams[k])))
+    for f, (x, y, m) in sorted(slivers.items()):
+        feeds.append((f, (x, y, m.shape[1], m.shape[0]), gains[pos[f]], _sliver_mask(x, y, m)))
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=params.workers) if params.workers > 0 else _no_pool() as pool:
         for tile in _tiles(canvas_wh, params.tile_px, 2 ** (bands + 1)):
-            _blend_tile(out, tile, bands, frames, rois, Hc, prepared, gains, seams, size_wh, pool)
+            _blend_tile(out, tile, bands, feeds, Hc, prepared, pool)
     return out, Hc
