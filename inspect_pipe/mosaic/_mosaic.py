@@ -88,7 +88,7 @@ def run_mosaic(
             continue
         k = len(images)
         path = out_dir / _image_name(k)
-        write_png(path, mosaic)
+        write_png(path, mosaic, compression=1)  # 0.21 s against 0.35 s at level 3 on synth_rust_sweep, 6 % larger
         images.append(path)
         for f, h in Hc.items():
             H_all[f] = h
