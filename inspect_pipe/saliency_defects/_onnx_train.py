@@ -89,6 +89,9 @@ class OnnxTrainConfig:
     ft_val_every: int = 250
     ft_time_budget_s: float = 30 * 60
     total_time_budget_s: float = 88 * 60  # both phases (phase 2 gets what phase 1 left, up to ft_time_budget_s)
+    # where the network runs while training: "cpu" (the shipped recipe) or "cuda" (only to search
+    # variants faster; the data, augmentation and random draws are the same, the arithmetic not)
+    device: str = "cpu"
 
 
 #: The earlier network's recipe (issue 9; shipped until issue 21): ``OnnxTrainConfig(**HALF_UNET_SETTINGS)``.
@@ -256,6 +259,16 @@ def input_norm(cfg: dict) -> tuple[tuple, tuple]:
     return ENCODER["input_mean"], ENCODER["input_std"]
 
 
+def _dev(net):
+    """The device the network's parameters are on."""
+    return next(net.parameters()).device
+
+
+def _cpu_state(net) -> dict:
+    """The network's state dict on the CPU (a checkpoint loads anywhere)."""
+    return {k: v.detach().cpu() for k, v in net.state_dict().items()}
+
+
 def _outputs(net, x):
     """(probabilities, severity logits or None) of either network."""
     y = net(x)
@@ -394,8 +407,8 @@ def _predict(net, rgb: np.ndarray, norm=(INPUT_MEAN, INPUT_STD)) -> tuple[np.nda
     H, W = -(-h // MULTIPLE_OF) * MULTIPLE_OF, -(-w // MULTIPLE_OF) * MULTIPLE_OF
     x = cv2.copyMakeBorder(rgb, 0, H - h, 0, W - w, cv2.BORDER_REFLECT_101).astype(np.float32) / 255.0
     with torch.no_grad():
-        p, s = _outputs(net, torch.from_numpy(_normalise(x, norm)[None]))
-    return p[0].numpy()[:, :h, :w], (None if s is None else s[0].numpy()[:, :h, :w])
+        p, s = _outputs(net, torch.from_numpy(_normalise(x, norm)[None]).to(_dev(net)))
+    return p[0].cpu().numpy()[:, :h, :w], (None if s is None else s[0].cpu().numpy()[:, :h, :w])
 
 
 def validate(net, val: dict[str, list[_Item]], norm=(INPUT_MEAN, INPUT_STD)) -> dict[str, dict]:
@@ -482,7 +495,7 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
     train_items, val_items, record = load_parts(root)
     log("data: " + ", ".join(f"{c} {r['n_train']} train / {r['n_val']} val" for c, r in record.items())
         + f" ({time.monotonic() - t0:.0f} s)")
-    net = make_net(asdict(cfg))
+    net = make_net(asdict(cfg)).to(cfg.device)
     norm = input_norm(asdict(cfg))
     n_par = sum(p.numel() for p in net.parameters())
     log(f"net: {cfg.arch}, {n_par} parameters")
@@ -522,7 +535,7 @@ def train(root: Path, ckpt: Path, cfg: OnnxTrainConfig = OnnxTrainConfig(), log:
             if score > best_score:
                 best_score, bad = score, 0
                 best = {"step": step, "val": v, "mean_F": round(score, 4)}
-                torch.save({"state": net.state_dict(), "best": best, "record": record, "config": asdict(cfg),
+                torch.save({"state": _cpu_state(net), "best": best, "record": record, "config": asdict(cfg),
                             "n_params": n_par}, ckpt)
             else:
                 bad += 1
@@ -558,18 +571,19 @@ def _loss(net, x, y, c, soft_f1: float = 0.0, sev=None, sev_weight: float = 0.0)
     labelled corrosion pixels."""
     import torch
 
-    xt, yt = torch.from_numpy(x), torch.from_numpy(y)
+    dev = _dev(net)
+    xt, yt = torch.from_numpy(x).to(dev), torch.from_numpy(y).to(dev)
     p, s = _outputs(net, xt)
-    p = p[torch.arange(len(c)), torch.from_numpy(c)]  # each sample's own class channel
+    p = p[torch.arange(len(c), device=dev), torch.from_numpy(c).to(dev)]  # each sample's own class channel
     p = p.clamp(1e-6, 1 - 1e-6)
-    w = torch.tensor([_POS_WEIGHT[CLASSES[i]] for i in c])[:, None, None]
+    w = torch.tensor([_POS_WEIGHT[CLASSES[i]] for i in c], device=dev)[:, None, None]
     bce_px = -(w * yt * torch.log(p) + (1 - yt) * torch.log(1 - p))
     inter = (p * yt).sum((1, 2))
     dice = 1 - (2 * inter + 1) / (p.sum((1, 2)) + yt.sum((1, 2)) + 1)
     if soft_f1 <= 0:
         loss = bce_px.mean() + 0.5 * dice.mean()
     else:
-        corr = torch.from_numpy(c == CLASSES.index("corrosion"))
+        corr = torch.from_numpy(c == CLASSES.index("corrosion")).to(dev)
         loss = bce_px.mean()
         if (~corr).any():
             loss = loss + 0.5 * dice[~corr].mean() * float((~corr).sum()) / len(c)
@@ -579,8 +593,9 @@ def _loss(net, x, y, c, soft_f1: float = 0.0, sev=None, sev_weight: float = 0.0)
             f1 = 2 * tp / (pc.sum() + yc.sum() + 1)
             loss = loss + soft_f1 * (1 - f1) * float(corr.sum()) / len(c)
     if s is not None and sev is not None and sev_weight > 0 and (sev != IGNORE).any():
-        st = torch.from_numpy(sev.astype(np.int64))
-        ce = torch.nn.functional.cross_entropy(s, st, weight=torch.tensor(STATE_WEIGHTS), ignore_index=IGNORE)
+        st = torch.from_numpy(sev.astype(np.int64)).to(dev)
+        ce = torch.nn.functional.cross_entropy(s, st, weight=torch.tensor(STATE_WEIGHTS, device=dev),
+                                               ignore_index=IGNORE)
         loss = loss + sev_weight * ce
     return loss
 
@@ -647,6 +662,7 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
     p1 = ck["best"]
     net = make_net(ck["config"], pretrained=False)
     net.load_state_dict(ck["state"])
+    net = net.to(cfg.device)
     norm = input_norm(ck["config"])
     opt = torch.optim.AdamW([q for q in net.parameters() if q.requires_grad], lr=cfg.ft_lr,
                             weight_decay=cfg.weight_decay)
@@ -683,7 +699,7 @@ def finetune(ckpt: Path, cfg: OnnxTrainConfig, *, root: Path | None = None, item
             if round(score, 4) > round(best_score, 4):  # phase 1's figure is stored rounded: a tie is no gain
                 best_score = score
                 best = {"step": p1["step"], "ft_step": step, "val": v, "mean_F": round(score, 4)}
-                ck2 = dict(ck, state=net.state_dict(), best=best, phase1_best=p1, config=asdict(cfg))
+                ck2 = dict(ck, state=_cpu_state(net), best=best, phase1_best=p1, config=asdict(cfg))
                 torch.save(ck2, ckpt)
             if over_time:
                 reason = f"time budget {budget:.0f} s"
