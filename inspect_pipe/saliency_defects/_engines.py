@@ -220,7 +220,7 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
             # stderr when a file is damaged: the user sees the one line below instead
             with _quiet():
                 model_ = load_onnx_model(path, threads=threads)
-                if not model:  # the shipped default: condition states from the shipped v2 head
+                if not model:  # the shipped default: condition states from the shipped v3 head
                     model_ = with_condition_states(model_, threads=threads)
             return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
         except ValueError as err:

@@ -109,7 +109,7 @@ def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | N
     p = load_fused_params(params_path)
     sal = load_model(Path(saliency_path or default_model_path()))
     onx = load_onnx_model(Path(onnx_path or default_onnx_path()), threads=threads)
-    if onnx_path is None:  # the shipped network: condition states from the shipped v2 head
+    if onnx_path is None:  # the shipped network: condition states from the shipped v3 head
         onx = with_condition_states(onx, threads=threads)
     cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}
     return FusedModel(params_path, p, sal, onx,
@@ -236,7 +236,7 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
 
 #: CPU time of one 752 x 480 frame (corrosion + crack, whole detection, one thread) of each engine,
 #: as measured by ``python -m bench --only detect_onnx`` (docs/benchmarks/detect_onnx.md, 2026-11-25 01:40).
-FRAME_CPU_MS = {"onnx": 39.0, "saliency": 64.0, "fused": 109.0}  # onnx: the default v1 network (v2: 52 ms)
+FRAME_CPU_MS = {"onnx": 39.0, "saliency": 64.0, "fused": 109.0}  # onnx: the default v1 network alone (v3: 52 ms)
 #: The per-frame time target of the default engine (issue 21: 60 ms on one core).
 FRAME_MS_TARGET = 60.0
 #: The default engine is the fastest whose mean validation figure is within this of the best.

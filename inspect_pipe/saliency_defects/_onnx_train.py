@@ -60,9 +60,9 @@ class OnnxTrainConfig:
 
     arch: str = "effnet_lite0_unet"
     seed: int = 0
-    crop_px: int = 128
+    crop_px: int = 192  # crack and surface crops (v3; 128 until v2), corrosion: corrosion_crop_px
     per_class_batch: int = 4  # crops of each class per step
-    max_steps: int = 1200  # about 15 min of one core's CPU time (0.7 s a step)
+    max_steps: int = 2240  # about 40 min of one free core's CPU time (about 1 s a step); v2: 1200
     lr: float = 1e-3
     weight_decay: float = 1e-4
     val_every: int = 400
@@ -95,7 +95,7 @@ class OnnxTrainConfig:
 
 
 #: The earlier network's recipe (issue 9; shipped until issue 21): ``OnnxTrainConfig(**HALF_UNET_SETTINGS)``.
-HALF_UNET_SETTINGS = {"arch": "half_unet", "max_steps": 24000, "lr": 3e-3, "val_every": 500, "ft_steps": 3000,
+HALF_UNET_SETTINGS = {"arch": "half_unet", "max_steps": 24000, "crop_px": 128, "lr": 3e-3, "val_every": 500, "ft_steps": 3000,
                       "corrosion_crop_px": 128, "soft_f1": 0.0, "severity_weight": 0.0}
 
 

@@ -79,12 +79,14 @@ def test_half_resolution_features_are_local_and_shared_pyramids_change_nothing()
     assert f1.shape == (256, 512)
     # columns 0..99 at level 1 are image columns 0..199, far from the change at 768
     assert np.allclose(f1.data[:, :, :100], f2.data[:, :, :100], atol=1e-4)
-    # computing both levels with one shared pyramid gives what separate calls give
+    # computing both levels with one shared pyramid gives what separate calls give (to float32
+    # rounding: OpenCV's threaded filters leave 'coh' 3e-8 apart now and then on a loaded machine,
+    # run against run, shared or not)
     shared: dict = {}
     g0 = compute_features(img, ("int_cs", "ori_cs", "coh"), level=0, shared=shared)
     g1 = compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1, shared=shared)
-    assert np.array_equal(g0.data, compute_features(img, ("int_cs", "ori_cs", "coh")).data)
-    assert np.array_equal(g1.data, compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1).data)
+    assert np.allclose(g0.data, compute_features(img, ("int_cs", "ori_cs", "coh")).data, rtol=0, atol=1e-6)
+    assert np.allclose(g1.data, compute_features(img, ("int_cs", "ori_cs", "lab_a_mean"), level=1).data, rtol=0, atol=1e-6)
 
 
 def test_colour_statistics_read_texture_and_colour_relative_to_the_surroundings():
