@@ -68,6 +68,10 @@ class OnnxModel:
     #: state of each corrosion pixel this one decides (the shipped default: v3's, see
     #: :func:`with_condition_states`); None: no states.
     states_model: OnnxModel | None = None
+    #: Scale of the image the ``states_model`` sees (its states are brought back to full size by
+    #: nearest neighbour): the condition-state labels are coarse polygons, and at 1/2 the second
+    #: network costs a quarter (:data:`STATES_SCALE`).
+    states_scale: float = 1.0
 
     @property
     def version(self) -> str:
@@ -249,8 +253,7 @@ def onnx_maps(
     if model.severity_output is None and model.states_model is not None and any(k == "corrosion" for _, k in want):
         return onnx_maps(image, dataclasses.replace(model, states_model=None), kinds=kinds, tile_px=tile_px,
                          margin_px=margin_px, whole_max_px=whole_max_px)[0], \
-            onnx_maps(image, model.states_model, kinds=("corrosion",), tile_px=tile_px, margin_px=margin_px,
-                      whole_max_px=whole_max_px)[1]
+            _attached_states(image, model, tile_px=tile_px, margin_px=margin_px, whole_max_px=whole_max_px)
     h, w = image.shape[:2]
     s = _stride(model)
     if h * w <= whole_max_px:
@@ -267,6 +270,19 @@ def onnx_maps(
         if sev:
             states[y0:y1, x0:x1] = _full_states(z[0], s, ty1 - ty0, tx1 - tx0, model.severity_bias)[core]
     return _calibrated(out, model), states
+
+
+def _attached_states(image: np.ndarray, model: OnnxModel, **kw) -> np.ndarray:
+    """Condition states 1..3 of every pixel from the network attached to ``model``
+    (``states_model``), run on the image resized by ``states_scale`` (area-averaged; not below the
+    network's smallest input) and brought back to full size by nearest neighbour."""
+    h, w = image.shape[:2]
+    sc = model.states_scale
+    if sc != 1.0 and min(h, w) * sc >= MIN_SIDE_PX:
+        small = cv2.resize(image, (max(1, round(w * sc)), max(1, round(h * sc))), interpolation=cv2.INTER_AREA)
+        st = onnx_maps(small, model.states_model, kinds=("corrosion",), **kw)[1]
+        return cv2.resize(st, (w, h), interpolation=cv2.INTER_NEAREST)
+    return onnx_maps(image, model.states_model, kinds=("corrosion",), **kw)[1]
 
 
 def _calibrated(maps: dict[str, np.ndarray], model: OnnxModel) -> dict[str, np.ndarray]:
@@ -343,16 +359,18 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
             p, z = _run(model, np.stack([_prepare(images[i], model.meta) for i in part]), severity=sev)
             h, w = images[part[0]].shape[:2]
             s = _stride(model)
-            zs = None
-            if model.severity_output is None and model.states_model is not None and "corrosion" in kinds:
-                sm = model.states_model
-                zs = _run(sm, np.stack([_prepare(images[i], sm.meta) for i in part]), severity=True)[1]
+            attached = model.severity_output is None and model.states_model is not None and "corrosion" in kinds
             for j, i in enumerate(part):
                 states = _full_states(z[j], s, h, w, model.severity_bias) if sev else \
-                    _full_states(zs[j], _stride(sm), h, w, sm.severity_bias) if zs is not None else None
+                    _attached_states(images[i], model, tile_px=tile_px) if attached else None
                 out[i] = _detection(_calibrated({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds}, model),
                                     model, kinds, states)
     return out  # type: ignore[return-value]
+
+
+#: Input scale of the attached condition-state network (chosen on the validation images: see
+#: docs/detect_onnx.md, "Condition states at a lower resolution").
+STATES_SCALE = 0.5
 
 
 def default_onnx_path() -> Path:
@@ -364,7 +382,7 @@ def default_onnx_path() -> Path:
     return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
 
 
-def with_condition_states(model: OnnxModel, *, threads: int = 1) -> OnnxModel:
+def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
     """``model`` with the shipped condition-state network attached when it has no head of its
     own: corrosion it decides gets the state of v3's head (validation mean F1 of fair / poor /
     severe 0.433 with v1's decisions, 0.463 with v3's own; docs/detect_onnx.md). Costs one more
@@ -372,7 +390,8 @@ def with_condition_states(model: OnnxModel, *, threads: int = 1) -> OnnxModel:
     if model.severity_output is not None or "corrosion" not in model.classes:
         return model
     states = load_onnx_model(condition_state_onnx_path(), threads=threads)
-    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None))
+    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None),
+                               states_scale=STATES_SCALE if scale is None else scale)
 
 
 def condition_state_onnx_path() -> Path:

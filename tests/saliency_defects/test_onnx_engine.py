@@ -315,9 +315,17 @@ def test_default_engine_gives_condition_states_from_the_v3_head(tmp_path):
     # THEN both decide the same corrosion, and only the default names a state for every decided pixel
     assert np.array_equal(d.mask, g.mask) and g.severity is None
     assert d.severity is not None and np.array_equal(d.severity > 0, d.mask)
-    # the states are v3's head on the pixels v1 decides
-    _, states = od.onnx_maps(img, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    # the states are v3's head, run on the image at STATES_SCALE, on the pixels v1 decides
+    h, w = img.shape[:2]
+    sc = od.STATES_SCALE
+    small = cv2.resize(img, (round(w * sc), round(h * sc)), interpolation=cv2.INTER_AREA)
+    _, states = od.onnx_maps(small, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    states = cv2.resize(states, (w, h), interpolation=cv2.INTER_NEAREST)
     assert np.array_equal(d.severity, np.where(d.mask, states, 0))
+    # AND at full scale the attached network gives exactly its own head's states
+    full = od.with_condition_states(od.load_onnx_model(od.default_onnx_path()), scale=1.0)
+    _, own = od.onnx_maps(img, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    assert np.array_equal(od.onnx_maps(img, full, kinds=("corrosion",))[1], own)
     assert default.model_doc(("corrosion",))["condition_states"]["version"] == "3"
     assert "condition_states" not in given.model_doc(("corrosion",))
     # AND a batch of frames gets the same states as one by one
