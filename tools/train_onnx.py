@@ -73,7 +73,7 @@ def main(argv=None) -> None:
     ap.add_argument("--int8", action=argparse.BooleanOptionalAction, default=INT8,
                     help="ship the int8 network (onnxruntime static quantisation; the float one is kept beside "
                          "the checkpoint as CKPT.float.onnx)")
-    ap.add_argument("--version", default="2")
+    ap.add_argument("--version", default="3")
     ap.add_argument("--finetune-from", type=Path, default=None,
                     help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
     for f in dataclasses.fields(OnnxTrainConfig):

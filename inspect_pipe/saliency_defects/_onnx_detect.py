@@ -370,7 +370,7 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
 
 #: Input scale of the attached condition-state network (chosen on the validation images: see
 #: docs/detect_onnx.md, "Condition states at a lower resolution").
-STATES_SCALE = 0.5
+STATES_SCALE = 0.375
 
 
 def default_onnx_path() -> Path:

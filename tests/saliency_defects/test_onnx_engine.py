@@ -108,7 +108,7 @@ def test_cli_corrosion_writes_the_severity_map_and_region_states(tmp_path):
 # Golden figures: the shipped network on the fixtures (all from the 'eval' part of the split),
 # measured when the model was committed; a retrained model must land within the tolerance.
 GOLDEN = {"v1": {"crack": 0.841, "corrosion": 0.739},  # the default: half-resolution U-Net with its corrosion fine-tuning
-          "v3": {"crack": 0.734, "corrosion": 0.769}}  # EfficientNet-Lite0 U-Net, int8, 2026-11-27 (v2: 0.766, 0.733)
+          "v3": {"crack": 0.775, "corrosion": 0.772}}  # EfficientNet-Lite0 U-Net, int8, 2026-11-27 (v2: 0.766, 0.733)
 # (before the fine-tuning phase v1 gave 0.836, 0.794 on these three images; the first network 0.737, 0.630)
 GOLDEN_TOL = 0.03
 
@@ -244,12 +244,13 @@ def _bad_models(tmp_path) -> dict[str, Path]:
     out = {"missing": tmp_path / "nothere.onnx"}
     out["corrupt"] = tmp_path / "corrupt.onnx"
     out["corrupt"].write_bytes(raw[: len(raw) // 3])
+    gain = od.load_onnx_model(od.condition_state_onnx_path()).meta["calibration"]["surface"]["gain"]
     # same-length byte edits of the metadata JSON (no onnx package needed)
     for name, old, new in (("format", b'"inspect_pipe.defect_onnx/1"', b'"inspect_pipe.defect_onnx/9"'),
                            ("channels", b'"channels": "RGB"', b'"channels": "BGR"'),
                            ("nometa", b"\x0a\x0cinspect_pipe", b"\x0a\x0cinspect_pipX"),
                            ("states", b'"states": ["fair", "poor", "severe"]', b'"states": ["fair", "poor", "severX"]'),
-                           ("calibration", b'"gain": 6.0', b'"gain": 0.0')):
+                           ("calibration", f'"gain": {float(gain)}'.encode(), b'"gain": 0.0')):
         assert raw.count(old) == 1, name
         out[name] = tmp_path / f"{name}.onnx"
         out[name].write_bytes(raw.replace(old, new))
