@@ -235,8 +235,10 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
 
 
 #: CPU time of one 752 x 480 frame (corrosion + crack, whole detection, one thread) of each engine,
-#: as measured by ``python -m bench --only detect_onnx`` (docs/benchmarks/detect_onnx.md, 2026-11-25 01:40).
-FRAME_CPU_MS = {"onnx": 39.0, "saliency": 64.0, "fused": 109.0}  # onnx: the default v1 network alone (v3: 52 ms)
+#: as loaded by ``detect`` (onnx and fused with the attached condition-state network), measured in
+#: interleaved rounds in one process (2026-11-27 20:05, Intel Xeon, 2 cores; v1 alone 43 ms, v3 alone
+#: 67 ms in the same run; docs/detect_onnx.md).
+FRAME_CPU_MS = {"onnx": 56.0, "saliency": 85.0, "fused": 132.0}
 #: The per-frame time target of the default engine (issue 21: 60 ms on one core).
 FRAME_MS_TARGET = 60.0
 #: The default engine is the fastest whose mean validation figure is within this of the best.

@@ -375,18 +375,18 @@ STATES_SCALE = 0.375
 
 def default_onnx_path() -> Path:
     """The default network: the half-resolution U-Net (v1). The pretrained-encoder network v3 has
-    the higher mean validation F (0.845 against 0.833; corrosion 0.770 against 0.725), but in the
-    demo flight it finds 10 of 12 known defects against v1's 11 (its corrosion operating point,
-    225/255, misses a 16 cm^2 patch), so v1 still decides and v3 gives the condition states
-    (docs/detect_onnx.md)."""
+    the higher mean validation F (0.852 against 0.833; corrosion 0.775 against 0.725), but in the
+    demo flight it finds 7 of 12 known defects (none of the cracks) against v1's 11, so v1 still
+    decides and v3 gives the condition states (docs/detect_onnx.md)."""
     return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
 
 
 def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
     """``model`` with the shipped condition-state network attached when it has no head of its
     own: corrosion it decides gets the state of v3's head (validation mean F1 of fair / poor /
-    severe 0.433 with v1's decisions, 0.463 with v3's own; docs/detect_onnx.md). Costs one more
-    network pass on images where corrosion is asked for."""
+    severe 0.426 with v1's decisions at ``STATES_SCALE``, 0.487 with v3's own; docs/detect_onnx.md).
+    Costs one more network pass, on the image at ``scale`` (default ``STATES_SCALE``) of its size,
+    on images where corrosion is asked for."""
     if model.severity_output is not None or "corrosion" not in model.classes:
         return model
     states = load_onnx_model(condition_state_onnx_path(), threads=threads)
