@@ -238,22 +238,25 @@ def _check(image: np.ndarray) -> None:
 
 def onnx_maps(
     image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX, margin_px: int = MARGIN_PX,
-    whole_max_px: int = WHOLE_MAX_PX,
+    whole_max_px: int = WHOLE_MAX_PX, own_decision: bool = False,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """(per-class probability maps (H, W) uint8 of the classes ``kinds`` (default all of the
     model's), condition-state map (H, W) uint8 1..3 of every pixel or None: without a severity
     head, or when corrosion is not asked for). Images above ``whole_max_px`` pixels run in tiles
     of ``tile_px`` with ``margin_px`` overlap on each side (tile origins on the 16 px grid), so
-    memory is bounded by the tile size."""
+    memory is bounded by the tile size. ``own_decision``: the caller decides corrosion on this
+    model's own map at its operating point, so an attached states network is skipped on an image
+    where nothing reaches it (:func:`_attached_states`)."""
     _check(image)
     if tile_px % MULTIPLE_OF or margin_px % MULTIPLE_OF:
         raise ValueError(f"tile and margin must be multiples of {MULTIPLE_OF} px")
     want = [(i, k) for i, k in enumerate(model.classes) if kinds is None or k in kinds]
     sev = model.severity_output is not None and any(k == "corrosion" for _, k in want)
     if model.severity_output is None and model.states_model is not None and any(k == "corrosion" for _, k in want):
-        return onnx_maps(image, dataclasses.replace(model, states_model=None), kinds=kinds, tile_px=tile_px,
-                         margin_px=margin_px, whole_max_px=whole_max_px)[0], \
-            _attached_states(image, model, tile_px=tile_px, margin_px=margin_px, whole_max_px=whole_max_px)
+        probs = onnx_maps(image, dataclasses.replace(model, states_model=None), kinds=kinds, tile_px=tile_px,
+                          margin_px=margin_px, whole_max_px=whole_max_px)[0]
+        return probs, _attached_states(image, model, probs["corrosion"] if own_decision else None, tile_px=tile_px,
+                                       margin_px=margin_px, whole_max_px=whole_max_px)
     h, w = image.shape[:2]
     s = _stride(model)
     if h * w <= whole_max_px:
@@ -272,11 +275,16 @@ def onnx_maps(
     return _calibrated(out, model), states
 
 
-def _attached_states(image: np.ndarray, model: OnnxModel, **kw) -> np.ndarray:
+def _attached_states(image: np.ndarray, model: OnnxModel, corrosion_u8: np.ndarray | None = None, **kw) -> np.ndarray:
     """Condition states 1..3 of every pixel from the network attached to ``model``
     (``states_model``), run on the image resized by ``states_scale`` (area-averaged; not below the
-    network's smallest input) and brought back to full size by nearest neighbour."""
+    network's smallest input) and brought back to full size by nearest neighbour. Given the
+    corrosion map that ``model`` itself decides on, and no pixel of it reaches ``model``'s
+    operating point, the second network is not run: only decided pixels keep a state, so every
+    pixel gets 1 and the detection is the same."""
     h, w = image.shape[:2]
+    if corrosion_u8 is not None and not (corrosion_u8 >= model.thresholds_u8["corrosion"]).any():
+        return np.ones((h, w), np.uint8)
     sc = model.states_scale
     if sc != 1.0 and min(h, w) * sc >= MIN_SIDE_PX:
         small = cv2.resize(image, (max(1, round(w * sc)), max(1, round(h * sc))), interpolation=cv2.INTER_AREA)
@@ -334,7 +342,7 @@ def detect_onnx(image: np.ndarray, model: OnnxModel, *, kinds=("corrosion", "cra
     """Like :func:`detect` of the saliency engine, with the learned network. Grey images are
     accepted for every class (replicated to RGB). Raises ValueError for an unusable image."""
     _check_kinds(model, kinds)
-    probs, states = onnx_maps(image, model, kinds=kinds, tile_px=tile_px)
+    probs, states = onnx_maps(image, model, kinds=kinds, tile_px=tile_px, own_decision=True)
     return _detection(probs, model, kinds, states)
 
 
@@ -361,10 +369,10 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
             s = _stride(model)
             attached = model.severity_output is None and model.states_model is not None and "corrosion" in kinds
             for j, i in enumerate(part):
+                probs = _calibrated({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds}, model)
                 states = _full_states(z[j], s, h, w, model.severity_bias) if sev else \
-                    _attached_states(images[i], model, tile_px=tile_px) if attached else None
-                out[i] = _detection(_calibrated({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds}, model),
-                                    model, kinds, states)
+                    _attached_states(images[i], model, probs["corrosion"], tile_px=tile_px) if attached else None
+                out[i] = _detection(probs, model, kinds, states)
     return out  # type: ignore[return-value]
 
 

@@ -333,3 +333,33 @@ def test_default_engine_gives_condition_states_from_the_v3_head(tmp_path):
     b = default.detect_batch([img, img[:, ::-1].copy()], kinds=("corrosion",))
     assert np.array_equal(b[0].severity, d.severity)
     assert np.array_equal(b[1].severity, default.detect(img[:, ::-1].copy(), kinds=("corrosion",)).severity)
+
+
+def test_states_network_is_skipped_where_no_corrosion_is_decided(monkeypatch):
+    # GIVEN the default engine (v1 decides, the states network attached) and a crack image with no corrosion
+    model = od.with_condition_states(od.load_onnx_model(od.default_onnx_path()))
+    # a grey painted plate with a dark line across it
+    rng = np.random.default_rng(4)
+    img = np.clip(rng.normal(150, 6, (320, 480, 3)), 0, 255).astype(np.uint8)
+    cv2.line(img, (20, 200), (460, 120), (60, 60, 60), 2)
+    corr = od.detect_onnx(img, model, kinds=("corrosion",))
+    assert not corr.mask.any()  # nothing decided as corrosion here
+    calls = []
+    real = od.onnx_maps
+    monkeypatch.setattr(od, "onnx_maps", lambda im, m, **kw: calls.append(m.path.name) or real(im, m, **kw))
+    # WHEN it detects corrosion and cracks, alone and in a batch
+    one = od.detect_onnx(img, model)
+    batch = od.detect_onnx_batch([img, img], model)
+    # THEN the states network never runs, and the detections equal those of a run that computes the states
+    assert od.condition_state_onnx_path().name not in calls
+    monkeypatch.setattr(od, "onnx_maps", real)
+    full = od.detect_onnx(img, dataclasses_replace_scale(model))
+    for d in (one, *batch):
+        assert np.array_equal(d.mask, full.mask) and np.array_equal(d.severity, full.severity)
+
+
+def dataclasses_replace_scale(model):
+    """The same model with the states network run at full scale (no shortcut through the scale path)."""
+    import dataclasses
+
+    return dataclasses.replace(model, states_scale=1.0)
