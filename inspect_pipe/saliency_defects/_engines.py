@@ -215,17 +215,24 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
     if engine == "onnx":
         from ._onnx_detect import MULTIPLE_OF, load_onnx_model, with_condition_states
 
+        from ._onnx_detect import condition_state_onnx_path
+
         try:
             # onnxruntime prints a banner ("EP Error ...") to stdout and its C++ log lines to
             # stderr when a file is damaged: the user sees the one line below instead
             with _quiet():
                 model_ = load_onnx_model(path, threads=threads)
-                if not model:  # the shipped default: condition states from the shipped v3 head
-                    model_ = with_condition_states(model_, threads=threads)
-            return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
         except ValueError as err:
             raise InputError(path, str(err), "use --engine saliency, or train one with "
                              "'inspect-pipe detect train --engine onnx'") from None
+        if not model:  # the shipped default: condition states from the shipped v3 head
+            try:
+                with _quiet():
+                    model_ = with_condition_states(model_, threads=threads)
+            except ValueError as err:
+                raise InputError(condition_state_onnx_path(), str(err), "reinstall inspect-pipe (a shipped model "
+                                 "file is damaged), or use --engine saliency") from None
+        return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
     from ._fused import load_fused_model
 
     try:

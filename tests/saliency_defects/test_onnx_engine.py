@@ -363,3 +363,17 @@ def dataclasses_replace_scale(model):
     import dataclasses
 
     return dataclasses.replace(model, states_scale=1.0)
+
+
+def test_a_damaged_states_network_is_named_in_the_one_line_error(tmp_path, monkeypatch):
+    from inspect_pipe.errors import InputError
+    from inspect_pipe.saliency_defects import load_engine
+
+    # GIVEN the shipped condition-state network damaged (cut to a third)
+    bad = tmp_path / "defects_unet_v3.onnx"
+    bad.write_bytes(od.condition_state_onnx_path().read_bytes()[:300_000])
+    monkeypatch.setattr(od, "condition_state_onnx_path", lambda: bad)
+    # WHEN the default engine loads THEN the error names that file, not the deciding network
+    with pytest.raises(InputError) as e:
+        load_engine("onnx")
+    assert str(bad) in str(e.value).split(":")[0] and "reinstall" in str(e.value)
