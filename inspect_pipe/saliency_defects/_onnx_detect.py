@@ -397,9 +397,28 @@ def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | 
     on images where corrosion is asked for."""
     if model.severity_output is not None or "corrosion" not in model.classes:
         return model
+    scale = STATES_SCALE if scale is None else scale
     states = load_onnx_model(condition_state_onnx_path(), threads=threads)
-    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None),
-                               states_scale=STATES_SCALE if scale is None else scale)
+    bias = attached_bias(states, model, scale)
+    if bias is not None:
+        states = dataclasses.replace(states, severity_bias=bias)
+    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None), states_scale=scale)
+
+
+def attached_bias(states: OnnxModel, decider: OnnxModel, scale: float) -> tuple[float, float, float] | None:
+    """The logit offsets ``states``' metadata records for giving the states of ``decider``'s
+    corrosion at ``scale`` (``severity.attached``: chosen on the validation images for that
+    decider file, checked by its SHA-256), or None: its own offsets apply."""
+    import hashlib
+
+    recs = states.meta.get("severity", {}).get("attached", [])
+    rec = next((a for a in recs if a.get("decider") == decider.path.name and float(a.get("scale", -1)) == float(scale)), None)
+    if rec is None or rec.get("decider_sha256") != hashlib.sha256(decider.path.read_bytes()).hexdigest():
+        return None
+    b = rec.get("logit_bias")
+    if not (isinstance(b, list) and len(b) == 3 and all(isinstance(x, (int, float)) for x in b)):
+        raise ValueError(f"{states.path}: severity.attached logit_bias must be three numbers")
+    return tuple(float(x) for x in b)
 
 
 def condition_state_onnx_path() -> Path:

@@ -788,21 +788,31 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
 SEVERITY_BIAS_GRID = tuple(round(-1.0 + 0.25 * i, 2) for i in range(17))
 
 
-def fit_severity_bias(path: Path, val_corrosion: list[_Item], threshold_u8: int, min_area_px: int) -> dict:
+def fit_severity_bias(path: Path, val_corrosion: list[_Item], threshold_u8: int, min_area_px: int, *,
+                      decider: Path | None = None, scale: float = 1.0) -> dict:
     """Offsets added to the condition-state logits before the arg-max, chosen on the validation
-    images (the network's own operating point and speckle removal decide where corrosion is):
-    the grid point with the best mean F1 of fair / poor / severe (ties: the smallest offsets).
+    images (the network's own operating point and speckle removal decide where corrosion is, or
+    those of ``decider``, a network the states are attached to, with the states network run at
+    ``scale`` as :func:`_onnx_detect.with_condition_states` runs it): the grid point with the best
+    mean F1 of fair / poor / severe (ties: the smallest offsets).
     Returns {"logit_bias", "F1", "mean_F1", "confusion", "unbiased_mean_F1"}."""
     from ._core import decide_u8
-    from ._onnx_detect import load_onnx_model, onnx_maps, onnx_severity_logits
+    from ._onnx_detect import MIN_SIDE_PX, load_onnx_model, onnx_maps, onnx_severity_logits
 
     m = load_onnx_model(path)
+    dm = m if decider is None else load_onnx_model(decider)
     zs, gs, gt_all, gt_dec = [], [], np.zeros(4, np.int64), np.zeros(4, np.int64)
     for it in val_corrosion:
         bgr = np.ascontiguousarray(it.rgb[:, :, ::-1])
-        p = onnx_maps(bgr, m, kinds=("corrosion",))[0]["corrosion"]
+        p = onnx_maps(bgr, dm, kinds=("corrosion",))[0]["corrosion"]
         dec = decide_u8(p, threshold_u8, min_area_px)[0]
-        z = onnx_severity_logits(bgr, m)
+        h, w = bgr.shape[:2]
+        if scale != 1.0 and min(h, w) * scale >= MIN_SIDE_PX:  # as inference: small image, nearest back
+            small = cv2.resize(bgr, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+            zsm = onnx_severity_logits(small, m)
+            z = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_NEAREST) for c in zsm])
+        else:
+            z = onnx_severity_logits(bgr, m)
         zs.append(z[:, dec])
         gs.append(it.states[dec])
         gt_all += np.bincount(it.states.ravel(), minlength=4)[:4]
@@ -859,6 +869,31 @@ def set_severity_bias(path: Path, root: Path | None = None, *, val=None, log: Ca
     log(f"severity logit bias {r['logit_bias']}: validation F1 fair / poor / severe {r['F1']}, mean {r['mean_F1']:.3f} "
         f"(without: {r['unbiased_mean_F1']:.3f})")
     return r
+
+
+def set_attached_bias(path: Path, decider: Path, scale: float, root: Path | None = None, *, val=None,
+                      log: Callable[[str], None] = print) -> dict:
+    """The logit offsets of the states network at ``path`` when it gives the states of the corrosion
+    ``decider`` decides, run at ``scale`` (``with_condition_states``), chosen on the validation
+    images; stored in its metadata under ``severity.attached`` (one record per decider file and
+    scale, with the decider's SHA-256), where ``with_condition_states`` finds it."""
+    import hashlib
+
+    from ._onnx_detect import load_onnx_model
+
+    meta = _read_meta(path)
+    dm = load_onnx_model(decider)
+    val = val if val is not None else load_parts(root, classes=("corrosion",))[1]
+    r = fit_severity_bias(path, val["corrosion"], int(dm.thresholds_u8["corrosion"]), int(dm.min_area_px["corrosion"]),
+                          decider=decider, scale=scale)
+    rec = {"decider": Path(decider).name, "decider_sha256": hashlib.sha256(Path(decider).read_bytes()).hexdigest(),
+           "scale": float(scale), "logit_bias": r["logit_bias"], "validation": r}
+    meta["severity"]["attached"] = [a for a in meta["severity"].get("attached", [])
+                                    if (a["decider"], a["scale"]) != (rec["decider"], rec["scale"])] + [rec]
+    _rewrite_meta(path, meta)
+    log(f"severity logit bias for {rec['decider']}'s decisions at scale {scale:g}: {r['logit_bias']}: validation F1 "
+        f"{r['F1']}, mean {r['mean_F1']:.3f} (with no bias: {r['unbiased_mean_F1']:.3f})")
+    return rec
 
 
 # ----------------------------------------------------------------------------- map calibration

@@ -1,6 +1,7 @@
 """The learned engine (``--engine onnx``): the shipped network on real fixtures, tiling, batches,
 bad models and bad images. onnxruntime only; no PyTorch needed."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -290,8 +291,6 @@ def test_cli_image_too_small_exits_2_and_others_are_written(tmp_path):
 
 def test_calibrated_surface_map_keeps_the_decision_and_is_sharper(sev_model):
     # GIVEN the v3 network, whose surface map is calibrated (gain chosen on the validation images)
-    import dataclasses
-
     cal = sev_model.meta["calibration"]["surface"]
     assert sev_model.thresholds_u8["surface"] == 128 and cal["validation"]["MAE"] < cal["validation"]["MAE_uncalibrated"]
     raw_model = dataclasses.replace(sev_model, calibration_luts={})
@@ -316,11 +315,15 @@ def test_default_engine_gives_condition_states_from_the_v3_head(tmp_path):
     # THEN both decide the same corrosion, and only the default names a state for every decided pixel
     assert np.array_equal(d.mask, g.mask) and g.severity is None
     assert d.severity is not None and np.array_equal(d.severity > 0, d.mask)
-    # the states are v3's head, run on the image at STATES_SCALE, on the pixels v1 decides
+    # the states are v3's head, run on the image at STATES_SCALE with the logit offsets its metadata
+    # records for v1's decisions at that scale (chosen on validation), on the pixels v1 decides
     h, w = img.shape[:2]
     sc = od.STATES_SCALE
     small = cv2.resize(img, (round(w * sc), round(h * sc)), interpolation=cv2.INTER_AREA)
-    _, states = od.onnx_maps(small, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    v3 = od.load_onnx_model(od.condition_state_onnx_path())
+    bias = od.attached_bias(v3, od.load_onnx_model(od.default_onnx_path()), sc)
+    assert bias is not None and bias != v3.severity_bias
+    _, states = od.onnx_maps(small, dataclasses.replace(v3, severity_bias=bias), kinds=("corrosion",))
     states = cv2.resize(states, (w, h), interpolation=cv2.INTER_NEAREST)
     assert np.array_equal(d.severity, np.where(d.mask, states, 0))
     # AND at full scale the attached network gives exactly its own head's states
@@ -353,16 +356,9 @@ def test_states_network_is_skipped_where_no_corrosion_is_decided(monkeypatch):
     # THEN the states network never runs, and the detections equal those of a run that computes the states
     assert od.condition_state_onnx_path().name not in calls
     monkeypatch.setattr(od, "onnx_maps", real)
-    full = od.detect_onnx(img, dataclasses_replace_scale(model))
+    full = od.detect_onnx(img, dataclasses.replace(model, states_scale=1.0))  # states at full scale
     for d in (one, *batch):
         assert np.array_equal(d.mask, full.mask) and np.array_equal(d.severity, full.severity)
-
-
-def dataclasses_replace_scale(model):
-    """The same model with the states network run at full scale (no shortcut through the scale path)."""
-    import dataclasses
-
-    return dataclasses.replace(model, states_scale=1.0)
 
 
 def test_a_damaged_states_network_is_named_in_the_one_line_error(tmp_path, monkeypatch):
@@ -377,3 +373,18 @@ def test_a_damaged_states_network_is_named_in_the_one_line_error(tmp_path, monke
     with pytest.raises(InputError) as e:
         load_engine("onnx")
     assert str(bad) in str(e.value).split(":")[0] and "reinstall" in str(e.value)
+
+
+def test_attached_bias_applies_only_to_the_decider_and_scale_it_was_chosen_for(tmp_path):
+    v3 = od.load_onnx_model(od.condition_state_onnx_path())
+    v1 = od.load_onnx_model(od.default_onnx_path())
+    rec = next(a for a in v3.meta["severity"]["attached"] if a["decider"] == v1.path.name)
+    # the record says where it was chosen and how well it did there
+    assert rec["validation"]["mean_F1"] > rec["validation"]["unbiased_mean_F1"]
+    assert od.attached_bias(v3, v1, rec["scale"]) == tuple(rec["logit_bias"])
+    # another scale, or a decider file of the same name with other bytes: v3's own offsets apply
+    assert od.attached_bias(v3, v1, 1.0) is None
+    other = tmp_path / v1.path.name
+    other.write_bytes(v1.path.read_bytes() + b"\0")
+    assert od.attached_bias(v3, dataclasses.replace(v1, path=other), rec["scale"]) is None
+    assert od.with_condition_states(v1, scale=1.0).states_model.severity_bias == v3.severity_bias
