@@ -392,7 +392,8 @@ def default_onnx_path() -> Path:
 def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
     """``model`` with the shipped condition-state network attached when it has no head of its
     own: corrosion it decides gets the state of v3's head (validation mean F1 of fair / poor /
-    severe 0.446 with v1's decisions at ``STATES_SCALE`` and the offsets recorded for them, 0.487 with v3's own; docs/detect_onnx.md).
+    severe 0.446 with v1's decisions at ``STATES_SCALE`` and the offsets recorded for them, 0.487
+    with v3's own; docs/detect_onnx.md).
     Costs one more network pass, on the image at ``scale`` (default ``STATES_SCALE``) of its size,
     on images where corrosion is asked for."""
     if model.severity_output is not None or "corrosion" not in model.classes:
