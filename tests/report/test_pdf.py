@@ -74,3 +74,31 @@ def test_coverage_marks_gaps_and_low_resolution(run_dir, tmp_path):
     expected = (2.6 * 1.35) / (3.0 * 2.35)
     assert rep.coverage.usable_fraction == pytest.approx(expected, abs=0.01)
     assert rep.coverage.gaps and rep.coverage.gaps[0]["area_m2"] == pytest.approx(3.0 * 2.35 - 2.6 * 1.35, rel=0.02)
+
+
+@pytest.mark.skipif(shutil.which("pdftotext") is None, reason="pdftotext absent (make test installs poppler-utils where apt works)")
+def test_a_long_register_keeps_each_row_whole_and_repeats_its_header(run_dir, tmp_path):
+    import dataclasses
+
+    why = _weasyprint_ok()
+    if why:
+        pytest.skip(why)
+    # GIVEN a register of 45 entries (the run's entries repeated under new ids): several pages
+    out = tmp_path / "rep"
+    rep = report_from_run(run_dir, out, ReportParams(coverage=CoverageParams(max_m_per_px=0.01)))
+    assert rep.defects
+    many = [dataclasses.replace(rep.defects[k % len(rep.defects)], id=f"R{k:03d}", note=f"Q{k:03d}")
+            for k in range(45)]
+    write_report(dataclasses.replace(rep, defects=many), out, log=lambda s: None)
+    text = subprocess.run(["pdftotext", "-layout", str(out / "report.pdf"), "-"], capture_output=True, text=True,
+                          check=True).stdout
+    pages = text.split("\f")
+    # (the notes are printed in the register's status cells only; ids also head the crops)
+    reg = [p for p in pages if any(f"Q{k:03d}" in p for k in range(45))]
+    # THEN the register runs over more than one page, every page of it repeats the header,
+    assert len(reg) >= 2
+    assert all("Conf." in p and "Class" in p for p in reg)
+    # AND each row's last line (the note in its status cell) is on a page that holds its id: no row is split
+    for k in range(45):
+        where_note = [i for i, p in enumerate(pages) if f"Q{k:03d}" in p]
+        assert len(where_note) == 1 and f"R{k:03d}" in pages[where_note[0]], (k, where_note)
