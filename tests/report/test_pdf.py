@@ -23,13 +23,19 @@ def _weasyprint_ok() -> str | None:
     return None
 
 
-@pytest.mark.skipif(shutil.which("pdftoppm") is None, reason="pdftoppm absent (make test installs poppler-utils where apt works)")
-def test_pdf_pages_are_not_blank_and_hold_the_register(run_dir, tmp_path):
+def _pdf_ready(tool: str, run_dir, tmp_path):
+    """(report of the test run, its output folder), or a skip naming what this machine lacks."""
+    if shutil.which(tool) is None:
+        pytest.skip(f"{tool} absent (make test installs poppler-utils where apt works)")
     why = _weasyprint_ok()
     if why:
         pytest.skip(why)
     out = tmp_path / "rep"
-    rep = report_from_run(run_dir, out, ReportParams(coverage=CoverageParams(max_m_per_px=0.01)))
+    return report_from_run(run_dir, out, ReportParams(coverage=CoverageParams(max_m_per_px=0.01))), out
+
+
+def test_pdf_pages_are_not_blank_and_hold_the_register(run_dir, tmp_path):
+    rep, out = _pdf_ready("pdftoppm", run_dir, tmp_path)
     written = write_report(rep, out, log=lambda s: None)
     assert written["pdf"] == out / "report.pdf"
     subprocess.run(["pdftoppm", "-r", "40", "-png", str(out / "report.pdf"), str(tmp_path / "page")], check=True)
@@ -76,16 +82,11 @@ def test_coverage_marks_gaps_and_low_resolution(run_dir, tmp_path):
     assert rep.coverage.gaps and rep.coverage.gaps[0]["area_m2"] == pytest.approx(3.0 * 2.35 - 2.6 * 1.35, rel=0.02)
 
 
-@pytest.mark.skipif(shutil.which("pdftotext") is None, reason="pdftotext absent (make test installs poppler-utils where apt works)")
 def test_a_long_register_keeps_each_row_whole_and_repeats_its_header(run_dir, tmp_path):
     import dataclasses
 
-    why = _weasyprint_ok()
-    if why:
-        pytest.skip(why)
     # GIVEN a register of 45 entries (the run's entries repeated under new ids): several pages
-    out = tmp_path / "rep"
-    rep = report_from_run(run_dir, out, ReportParams(coverage=CoverageParams(max_m_per_px=0.01)))
+    rep, out = _pdf_ready("pdftotext", run_dir, tmp_path)
     assert rep.defects
     many = [dataclasses.replace(rep.defects[k % len(rep.defects)], id=f"R{k:03d}", note=f"Q{k:03d}")
             for k in range(45)]
