@@ -216,7 +216,6 @@ def run(data: Path) -> str:
     res["surface"]["onnx"]["MAE"] = _mae(root, lambda im: onnx_probabilities_u8(im, onx)["surface"])
     res["surface"]["alt"]["MAE"] = _mae(root, lambda im: onnx_probabilities_u8(im, alt)["surface"])
     res["surface"]["fused"]["MAE"] = _mae(root, res["surface"]["fused_fn"])
-    sev = {}
     sev = {e: _severity(root, st) for e, st in states.items() if st and st[0] is not None}
     acc_s = time.perf_counter() - t0
 

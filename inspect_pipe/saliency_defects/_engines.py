@@ -213,9 +213,7 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
             raise InputError(path, str(err)) from None
     _need_onnxruntime(engine)
     if engine == "onnx":
-        from ._onnx_detect import MULTIPLE_OF, load_onnx_model, with_condition_states
-
-        from ._onnx_detect import condition_state_onnx_path
+        from ._onnx_detect import MULTIPLE_OF, condition_state_onnx_path, load_onnx_model, with_condition_states
 
         try:
             # onnxruntime prints a banner ("EP Error ...") to stdout and its C++ log lines to

@@ -69,8 +69,8 @@ class OnnxModel:
     #: :func:`with_condition_states`); None: no states.
     states_model: OnnxModel | None = None
     #: Scale of the image the ``states_model`` sees (its states are brought back to full size by
-    #: nearest neighbour): the condition-state labels are coarse polygons, and at 1/2 the second
-    #: network costs a quarter (:data:`STATES_SCALE`).
+    #: nearest neighbour): the condition-state labels are coarse polygons, and a smaller input
+    #: costs the second network a fraction (the shipped default: :data:`STATES_SCALE`).
     states_scale: float = 1.0
 
     @property
@@ -275,6 +275,15 @@ def onnx_maps(
     return _calibrated(out, model), states
 
 
+def scaled_input(image: np.ndarray, scale: float) -> np.ndarray | None:
+    """``image`` resized by ``scale`` (area-averaged) for an attached states network, or None where
+    it runs at full size (scale 1, or a short side that would fall below the smallest input)."""
+    h, w = image.shape[:2]
+    if scale == 1.0 or min(h, w) * scale < MIN_SIDE_PX:
+        return None
+    return cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+
+
 def _attached_states(image: np.ndarray, model: OnnxModel, corrosion_u8: np.ndarray | None = None, **kw) -> np.ndarray:
     """Condition states 1..3 of every pixel from the network attached to ``model``
     (``states_model``), run on the image resized by ``states_scale`` (area-averaged; not below the
@@ -285,9 +294,8 @@ def _attached_states(image: np.ndarray, model: OnnxModel, corrosion_u8: np.ndarr
     h, w = image.shape[:2]
     if corrosion_u8 is not None and not (corrosion_u8 >= model.thresholds_u8["corrosion"]).any():
         return np.ones((h, w), np.uint8)
-    sc = model.states_scale
-    if sc != 1.0 and min(h, w) * sc >= MIN_SIDE_PX:
-        small = cv2.resize(image, (max(1, round(w * sc)), max(1, round(h * sc))), interpolation=cv2.INTER_AREA)
+    small = scaled_input(image, model.states_scale)
+    if small is not None:
         st = onnx_maps(small, model.states_model, kinds=("corrosion",), **kw)[1]
         return cv2.resize(st, (w, h), interpolation=cv2.INTER_NEAREST)
     return onnx_maps(image, model.states_model, kinds=("corrosion",), **kw)[1]

@@ -797,7 +797,7 @@ def fit_severity_bias(path: Path, val_corrosion: list[_Item], threshold_u8: int,
     mean F1 of fair / poor / severe (ties: the smallest offsets).
     Returns {"logit_bias", "F1", "mean_F1", "confusion", "unbiased_mean_F1"}."""
     from ._core import decide_u8
-    from ._onnx_detect import MIN_SIDE_PX, load_onnx_model, onnx_maps, onnx_severity_logits
+    from ._onnx_detect import load_onnx_model, onnx_maps, onnx_severity_logits, scaled_input
 
     m = load_onnx_model(path)
     dm = m if decider is None else load_onnx_model(decider)
@@ -807,10 +807,9 @@ def fit_severity_bias(path: Path, val_corrosion: list[_Item], threshold_u8: int,
         p = onnx_maps(bgr, dm, kinds=("corrosion",))[0]["corrosion"]
         dec = decide_u8(p, threshold_u8, min_area_px)[0]
         h, w = bgr.shape[:2]
-        if scale != 1.0 and min(h, w) * scale >= MIN_SIDE_PX:  # as inference: small image, nearest back
-            small = cv2.resize(bgr, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
-            zsm = onnx_severity_logits(small, m)
-            z = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_NEAREST) for c in zsm])
+        small = scaled_input(bgr, scale)
+        if small is not None:  # as inference: the small image's states brought back by nearest neighbour
+            z = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_NEAREST) for c in onnx_severity_logits(small, m)])
         else:
             z = onnx_severity_logits(bgr, m)
         zs.append(z[:, dec])
@@ -1036,11 +1035,13 @@ def quantize_onnx(src: Path, dst: Path, root: Path, *, n_per_class: int = 8,
 INT8 = True
 
 
-def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "2", int8: bool = INT8,
+def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "3", int8: bool = INT8,
                  log: Callable[[str], None] = print) -> None:
     """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
     the validation images and, with ``int8``, the quantised network at ``out`` (the float one
-    beside the checkpoint, ``CKPT.float.onnx``: not in the package)."""
+    beside the checkpoint, ``CKPT.float.onnx``: not in the package); for a network with a
+    condition-state head, also the offsets for giving the states of the shipped default's
+    decisions at ``STATES_SCALE`` (:func:`set_attached_bias`)."""
     out = Path(out)
     flt = Path(ckpt).with_suffix(".float.onnx") if int8 else out
     export_onnx(ckpt, flt, version=version, log=log)
@@ -1049,3 +1050,7 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "2", int8:
     if int8:
         quantize_onnx(flt, out, root, log=log)
     set_map_calibration(out, val, log=log)
+    from ._onnx_detect import STATES_SCALE, default_onnx_path
+
+    if "severity" in _read_meta(out) and default_onnx_path().is_file() and default_onnx_path().resolve() != out.resolve():
+        set_attached_bias(out, default_onnx_path(), STATES_SCALE, val=val, log=log)
