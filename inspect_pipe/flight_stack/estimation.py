@@ -37,8 +37,14 @@ class RangeObserver:
     accelerometer bias would leave a steady rate error of k1*bias/k2, and the vehicle would creep.
     """
 
-    def __init__(self, *, k1: float, k2: float, k3: float = 0.0, max_gap_s: float = 1.0, max_bias: float = 0.5) -> None:
+    def __init__(
+        self, *, k1: float, k2: float, k3: float = 0.0, max_gap_s: float = 1.0, max_bias: float = 0.5,
+        jump_m: float | None = None,
+    ) -> None:
         self.k1, self.k2, self.k3 = k1, k2, k3
+        #: a sample this far from the prediction is another surface (a wall's edge passed, a
+        #: pillar come into the beam), not motion: the range re-seats, rate and bias stay
+        self.jump_m = jump_m
         self.max_bias = max_bias  # m/s^2: a calibrated accelerometer's residual bias is far below
         self.bias = 0.0
         self.max_gap_s = max_gap_s
@@ -76,6 +82,12 @@ class RangeObserver:
             return
         ts = min(max(t_meas - last, 1e-3), 0.3)
         r = z - self.at(t_meas)
+        if self.jump_m is not None and abs(r) > self.jump_m:
+            # Taken as motion, the front range's step from 1.0 to 2.8 m (the vehicle slid past a
+            # pillar's end) read as 2 m/s away from it, the bias state hit its limit, and the
+            # speed loop flew the vehicle at 2 m/s into the far wall (campaign seed 12 e80).
+            self.value += r
+            return
         self.value += min(self.k1 * ts, 1.0) * r
         if self.rate_measured:
             # The rate comes from optical flow, not from the accelerometer: the residual says
@@ -86,6 +98,71 @@ class RangeObserver:
             return
         self.rate += self.k2 * ts * r
         self.bias = max(-self.max_bias, min(self.max_bias, self.bias - self.k3 * ts * r))
+
+
+class SpeedObserver:
+    """One axis's speed and the accelerometer's bias along it: a two-state Kalman filter.
+
+    State ``(v, b)``: the speed along the axis (heading frame, m/s) and the accelerometer's bias
+    along it (m/s^2; mostly the autopilot's attitude-estimate error times g, which wanders in
+    flight). :meth:`predict` carries the speed with the IMU's acceleration less ``b``;
+    :meth:`correct` takes whatever measures the speed (a PX4Flow speed, a range rate) with its
+    noise. An innovation further than ``gate`` standard deviations is not used (a new surface in
+    a sonar's beam, a flow glitch). With no measurement used (the alarm modes, rejections) the
+    speed is carried on with the IMU and its variance grows, so the gate widens until a
+    measurement consistent with that uncertainty is taken again.
+
+    ``accel_noise`` (m/s^2/sqrt(Hz)) and ``bias_walk`` (m/s^2/sqrt(s)) are the process noise
+    densities; the per-measurement noise comes with each :meth:`correct`.
+    """
+
+    V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
+
+    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate")
+
+    def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
+        self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
+        self.v = self.b = 0.0
+        self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
+
+    def predict(self, accel: float, dt: float) -> None:
+        if dt <= 0.0:
+            return
+        self.v += (accel - self.b) * dt
+        p00, p01, p11 = self.p00, self.p01, self.p11
+        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + self.q_a * dt
+        self.p01 = p01 - dt * p11
+        self.p11 = p11 + self.q_b * dt
+
+    def correct(self, z: float, noise: float, *, then: float | None = None, learn_bias: bool = True) -> bool:
+        """Take a measurement ``z`` of the speed with standard deviation ``noise``; ``then``: the
+        estimate of the moment ``z`` was measured (a delayed measurement's innovation is taken
+        against it and applied now). ``learn_bias=False``: a measurement that shares the IMU's
+        errors (a rate that is itself the IMU's integral corrected by a range) corrects the
+        speed only; the bias is a "consider" state for it (Schmidt-Kalman). Returns whether it
+        was used."""
+        y = z - (self.v if then is None else then)
+        s = self.p00 + noise * noise
+        if y * y > self.gate * self.gate * s:
+            return False
+        k0 = self.p00 / s
+        self.v += k0 * y
+        p00, p01 = self.p00, self.p01
+        self.p00 = (1.0 - k0) * p00
+        self.p01 = (1.0 - k0) * p01
+        if learn_bias:
+            k1 = p01 / s
+            self.b += k1 * y
+            self.p11 -= k1 * p01
+        return True
+
+    def restart(self, v: float) -> None:
+        """Restart the speed at ``v`` (its variance too); the bias is kept."""
+        self.v, self.p00, self.p01 = v, self.V0, 0.0
+
+    @property
+    def sigma_v(self) -> float:
+        return math.sqrt(max(self.p00, 0.0))
 
 
 class HeightEstimator:
@@ -128,8 +205,10 @@ class HeightEstimator:
         raw = range_m + self.floor_offset_m
         # Near the floor the range sensors clamp at their minimum (sonar 0.3 m, TeraRanger 0.2 m):
         # a reading that parts from the prediction there is the clamp, not a step (a light
-        # vehicle's take-off outran its clamped sonar by 0.17 m).
-        low = min(range_m, (o.value or 0.0) - self.floor_offset_m) < self.step_min_height_m
+        # vehicle's take-off outran its clamped sonar by 0.17 m). Predicted well above the floor,
+        # a low reading is a step: a box top 0.39 m below a vehicle at 1.39 m is no clamp.
+        pred_h = (o.value or 0.0) - self.floor_offset_m
+        low = min(range_m, pred_h) < self.step_min_height_m and pred_h < self.step_min_height_m + self.jump_m
         if not fresh and not low:
             pred = o.at(t_meas)
             if abs(raw - pred) > self.jump_m or self._settling > 0:
@@ -216,13 +295,16 @@ class MAVStateUpdater:
         self.height = HeightEstimator(
             jump_m=p.height_jump_m, settle_samples=p.height_step_settle_samples, step_min_height_m=p.height_step_min_m, **k
         )
-        self.front = RangeObserver(**k)
+        self.front = RangeObserver(jump_m=p.height_jump_m, **k)
         self._last_height_stamp = -1.0
         self._last_front_stamp = -1.0
         self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
-        self._dr_v = (0.0, 0.0)  # horizontal speed carried through the alarm modes (IMU)
-        self._carry_yaw: float | None = None  # the heading the carried speed is expressed in
-        self._dr_vz = 0.0  # vertical speed carried through the alarm modes (IMU)
+        #: the speed observers along x, y (heading frame) and z: speed and accelerometer bias
+        self.obs = tuple(
+            SpeedObserver(accel_noise=p.accel_noise_m_s2, bias_walk=p.bias_walk_m_s2, gate=p.observer_gate_sigma)
+            for _ in range(3)
+        )
+        self._obs_yaw: float | None = None  # the heading the observers' speeds are expressed in
         self._alarm_since: float | None = None  # when the current alarm mode began
         self.memory = ObstacleMemory(
             keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg
@@ -238,18 +320,26 @@ class MAVStateUpdater:
         self._range_stuck = {
             k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
         }
-        #: the accelerometer's bias (heading frame, m/s^2): set at rest on the floor by the onboard
-        #: stack, learnt in flight from the flow speeds (``_learn_bias``)
-        self.imu_bias = (0.0, 0.0, 0.0)
-        self._bias_v: list[float | None] = [None, None, None]  # the bias observer's speeds
         self._was_stuck = {"bottom": False, "front": False}
         self._newly_stuck = {"bottom": False, "front": False}
-        self._v_prev = (0.0, 0.0)  # last horizontal speed estimate (the stuck-sonar check runs first)
         self._last_now: float | None = None
         self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._range_rates: dict[str, float | None] = {"front": None, "left": None, "right": None}
-        self._v_hist: deque[tuple[float, float, float]] = deque()  # (t, carried vx, vy) over the last slope window
+        self._v_hist: deque[tuple[float, float, float]] = deque()  # (t, observed vx, vy) over the last slope window
         self._yaw_hist: list[tuple[float, float]] = []  # (t, heading) over the last slope window
+        self._reading_stamps: dict[str, float] = {}  # the stamp of each measurement last used
+
+    @property
+    def imu_bias(self) -> tuple[float, float, float]:
+        """The accelerometer's bias (heading frame, m/s^2): the speed observers' bias states,
+        set at rest on the floor by the onboard stack and learnt in flight."""
+        x, y, z = self.obs
+        return x.b, y.b, z.b
+
+    @imu_bias.setter
+    def imu_bias(self, bias: tuple[float, float, float]) -> None:
+        for o, b in zip(self.obs, bias):
+            o.b = b
 
     def status(self, now: float, m: Measurements) -> SensorStatus:
         p = self.p
@@ -262,10 +352,10 @@ class MAVStateUpdater:
         ax, ay, az = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else (0.0, 0.0, 0.0)
         bx, by, bz = self.imu_bias
         b_stuck = b_flow and self._stuck["bottom"].check(
-            bf.stamp_s, (bf.vx_m_s, bf.vy_m_s), (ax - bx, ay - by), reference=self._dr_v  # type: ignore[union-attr]
+            bf.stamp_s, (bf.vx_m_s, bf.vy_m_s), (ax - bx, ay - by), reference=(self.obs[0].v, self.obs[1].v)  # type: ignore[union-attr]
         )
         f_stuck = f_flow and self._stuck["front"].check(
-            ff.stamp_s, (ff.vy_m_s, ff.vz_m_s), (ay - by, az - bz), reference=(self._dr_v[1], None)  # type: ignore[union-attr]
+            ff.stamp_s, (ff.vy_m_s, ff.vz_m_s), (ay - by, az - bz), reference=(self.obs[1].v, None)  # type: ignore[union-attr]
         )
         self._newly_stuck = {"bottom": b_stuck and not self._was_stuck["bottom"], "front": f_stuck and not self._was_stuck["front"]}
         self._was_stuck = {"bottom": b_stuck, "front": f_stuck}
@@ -299,7 +389,7 @@ class MAVStateUpdater:
         if imu is not None and (bflow is not None or fflow is not None):
             bflow, fflow = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, bflow, fflow)
         if imu is not None:
-            self._learn_bias(dt, (ax, ay, az), bflow, fflow)
+            self._predict(ax, ay, az, dt)
         self._restart_after_stuck_flow()
 
         # Front range (vx in modes 2 and 3, front clearance always). Flow speed, when there is
@@ -309,61 +399,44 @@ class MAVStateUpdater:
         if fs is not None and fs.range_m is not None and fs.stamp_s != self._last_front_stamp:
             self._last_front_stamp = fs.stamp_s
             self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
-        # One accelerometer bias along x: the bottom flow's (``_learn_bias``) while there is one;
+        # One accelerometer bias along x: the x observer's (learnt from the bottom flow) while there is one;
         # without it the front range observer's own bias state, which the sonar corrects (modes
         # 2 and 3). Not shared, the speed loop pushed with a bias only one of them knew, and the
         # Fig. 5 hover in mode 2 drifted 0.30 m.
         if bflow is not None:
-            self.front.bias = -self.imu_bias[0]
+            self.front.bias = -self.obs[0].b
         elif _fresh_range(fs, now, p.sonar_timeout_s, p.sonar_max_range_m):
-            self.imu_bias = (-self.front.bias, self.imu_bias[1], self.imu_bias[2])
+            self.obs[0].b = -self.front.bias
 
-        # Horizontal speeds: flow preferred over range derivative. In the alarm modes no sensor
-        # measures them; the paper fills in zero, which leaves a vehicle that was moving coasting
-        # on (its speed loop sees no error to brake on: safety campaign, every range sensor lost
-        # during a push, the vehicle slid into the wall). Instead the last speed is carried on
-        # with the IMU's acceleration, leaking to zero (accelerometer bias) over
-        # ``alarm_speed_leak_s``, so the speed loop brakes the vehicle to a stop.
-        bx, by, _ = self.imu_bias
-        if bflow is not None or fflow is not None:
-            cx, cy = self._carry(ax - bx, ay - by, dt)
-            if bflow is not None:
-                vx, vy = bflow.vx_m_s, bflow.vy_m_s
-            else:
-                # Modes 2 and 3: vx is the front range's rate, which is the speed only while the
-                # heading holds: turning, the range to a wall at an angle changes without any
-                # translation. Pushed while yawing at 0.11 rad/s, the rate said 0.2 m/s while the
-                # vehicle sped up to 0.77 m/s, and the stop came 0.10 m past the line (safety
-                # campaign, seed 1 e433). While turning, vx is carried on with the IMU instead.
-                turning = self._yaw is not None and self._turning(now)  # no heading known: Table I as is
-                vx, vy = (cx if turning else -self.front.rate), fflow.vy_m_s  # type: ignore[union-attr]
-            # The horizontal speed is the measured one blended with the IMU (complementary
-            # filter, ``speed_blend_tau_s``): the IMU carries it between and through the
-            # measurements, which correct it at that time constant. The PX4Flow's output holds the
-            # body rotation its own gyro's scale error leaves in (scale x rate x distance): taken
-            # as it came, it closed a loop through the speed PID and the attitude (rolling at 6 Hz
-            # makes the flow read 0.3 m/s at 2 m, the PID rolls back) that diverged with height
-            # (fresh seed 20261126 e7: a 4 % scale error, unstable from 2 m, thrust cut to zero
-            # while the mixer's attitude-first collective climbed to 6.7 m). The filter passes 17 %
-            # of a 6 Hz error and leaves an in-flight accelerometer bias error of 0.03 m/s^2 as
-            # 0.005 m/s. The alarm modes carry on this speed: carried from the last flow reading
-            # alone, that reading's noise (0.08 m/s at rest) became a steady speed error, and the
-            # vehicle held "still" drifted 0.38 m while every range sensor was lost (safety
-            # campaign, seed 1 e1367).
-            kc = min(1.0, dt / (p.speed_blend_tau_s + dt)) if dt > 0.0 else 1.0
-            self._dr_v = (cx + (vx - cx) * kc, cy + (vy - cy) * kc)
-            vx, vy = self._dr_v
+        # Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front range's rate
+        # and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
+        # (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
+        # PX4Flow's output holds the body rotation its own gyro's scale error leaves in (scale x
+        # rate x distance), and the speed PID closed a loop through it and the attitude that
+        # diverged with height (a 4 % scale error rolling at 6 Hz reads 0.3 m/s at 2 m); the
+        # observer, carried by the IMU between readings, passes a fraction of that. In the alarm
+        # modes nothing in Table I measures them: the paper fills in zero, which leaves a moving
+        # vehicle coasting on (its speed loop sees no error to brake on); the observers carry the
+        # last speed on with the IMU instead, so the loop brakes, and the horizontal sonars' range
+        # rates correct them where they hear a wall (``_range_rate_speeds``).
+        ox, oy, oz = self.obs
+        noise = p.flow_noise_m_s
+        if bflow is not None:
+            if self._new_reading("bottom_flow", bflow.stamp_s):
+                ox.correct(bflow.vx_m_s, noise)
+                oy.correct(bflow.vy_m_s, noise)
+        elif fflow is not None:
+            # Modes 2 and 3: vx is the front range's rate, which is the speed only while the
+            # heading holds: turning, the range to a wall at an angle changes without any
+            # translation (pushed while yawing, the rate said 0.2 m/s while the vehicle sped up to
+            # 0.77 m/s). While turning, vx is carried on with the IMU alone.
+            if self._yaw is None or not self._turning(now):
+                ox.correct(-self.front.rate, noise)
+            if self._new_reading("front_flow", fflow.stamp_s):
+                oy.correct(fflow.vy_m_s, noise)
         else:
-            # The accelerometer's bias, learnt on the floor, is removed first: carried with it, the
-            # speed settles at bias x leak time, and the speed loop holding it at 0 flew the
-            # vehicle at 0.1 m/s into the wall it was held at (safety campaign, seed 4).
-            # The leak is for an axis no sonar measures; on one that a range rate corrects, it
-            # only pulled the speed towards zero against the measurement (a braking vehicle's
-            # speed 0.05 m/s low).
-            vx, vy = self._carry(ax - bx, ay - by, dt)
-            (vx, measured_x), (vy, measured_y) = self._range_rate_speeds(now, dt, vx, vy)
-            vx, vy = vx if measured_x else self._leak(vx, dt), vy if measured_y else self._leak(vy, dt)
-            self._dr_v = (vx, vy)
+            self._range_rate_speeds(now)
+        vx, vy = ox.v, oy.v
         if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw)
 
@@ -395,26 +468,32 @@ class MAVStateUpdater:
 
         # "+val." (Table I): the alarm modes report a climb so that the speed loop descends. Filled
         # in alone, a constant +val is an error the loop never removes: it descended faster and
-        # faster (safety campaign: every range sensor lost, 0.4-0.8 m/s into a coaming below).
-        # The val is added to the last vertical speed carried on with the IMU instead, so the
-        # loop settles at a steady descent of val. Mode -1 still has the TeraRanger's rate.
+        # faster (every range sensor lost, 0.4-0.8 m/s into a coaming below). The val is added to
+        # the vertical observer's speed instead (carried on with the IMU), so the loop settles at
+        # a steady descent of val. Mode -1 still has the TeraRanger's rate.
+        # The front flow's vz is a measurement of the vertical observer; without it, the height
+        # observer's rate (Table I's derivative) is, but one that corrects the speed and not the
+        # bias: that rate is itself the IMU's integral corrected by a 10 Hz range, with the IMU's
+        # errors in it (taken as a bias measurement, it walked the bias to -0.2 m/s^2 over a
+        # climb, and the carried alarm descent sped up to 0.67 m/s). In mode -2 the speed is
+        # carried on with the IMU and relaxes towards zero at ``alarm_vz_leak_m_s2``: the
+        # vertical bias a short floor calibration leaves (~0.02 m/s^2) is unobservable without a
+        # vertical flow, and the loop, holding the carried speed at -val, turned it into a
+        # descent that slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent).
+        if vz_flow is not None:
+            oz.correct(vz_flow, noise)
+        elif mode != EstimationMode.ALARM_NONE:
+            oz.correct(self.height.rate_m_s, noise, learn_bias=False)
         if mode == EstimationMode.ALARM_TOF:
-            vz = self.height.rate_m_s + climb  # the TeraRanger still measures it
-            self._dr_vz = self.height.rate_m_s
+            vz = self.height.rate_m_s + climb
         elif mode < 0:
-            # The leak is capped much lower than the horizontal one: the loop holds this speed at
-            # -val, so whatever the leak removes the vehicle gains as a real acceleration. Leaking
-            # over 3 s uncapped, an alarm descent sped up by val / 3 s each second (0.25 ->
-            # 0.35 m/s within 2 s onto a box edge: safety campaign, seed 5 e1805).
-            self._dr_vz = self._leak(self._dr_vz + (az - self.imu_bias[2]) * dt, dt, p.alarm_vz_leak_max_m_s2)
-            vz = self._dr_vz + climb
+            oz.v -= math.copysign(min(abs(oz.v), p.alarm_vz_leak_m_s2 * dt), oz.v)
+            vz = oz.v + climb
         else:
             vz = vz_flow if vz_flow is not None else self.height.rate_m_s
-            self._dr_vz = vz
 
-        self._v_prev = (vx, vy)
         hist = self._v_hist
-        hist.append((now, *self._dr_v))
+        hist.append((now, vx, vy))
         while now - hist[0][0] > self._slopes["front"].window_s + p.sonar_latency_s + 0.5:
             hist.popleft()
         est = StateEstimate(
@@ -468,48 +547,13 @@ class MAVStateUpdater:
             right_closing_m_s=closing["right"],
         )
 
-    def _learn_bias(self, dt: float, accel: tuple[float, float, float], bflow, fflow) -> None:
-        """The accelerometer's bias in the heading frame, learnt in flight wherever a flow
-        measures the speed along an axis: a second-order observer per axis (speed propagated with
-        the IMU less the bias, corrected by the flow speed; time constant ``imu_bias_tau_s``).
-        The bias is mostly the attitude estimate's error (g x error: 0.05 m/s^2 at 0.3 deg), which
-        drifts in flight: learnt once on the floor, it left a steady push that the disturbance
-        observers passed on and the vehicle hovering in mode 0 drifted 0.67 m in a minute. The
-        alarm modes carry their speeds with the bias learnt last."""
-        if dt <= 0.0:
-            return
-        p = self.p
-        tau = p.imu_bias_tau_s
-        k1, k2 = 2.0 / tau, 1.0 / (tau * tau)
-        meas = (
-            bflow.vx_m_s if bflow is not None else None,
-            bflow.vy_m_s if bflow is not None else fflow.vy_m_s if fflow is not None else None,
-            fflow.vz_m_s if fflow is not None else None,
-        )
-        bias, v = list(self.imu_bias), self._bias_v
-        for i in range(3):
-            z = meas[i]
-            if z is None:
-                v[i] = None
-                continue
-            vi = v[i]
-            if vi is not None:
-                vi += (accel[i] - bias[i]) * dt
-                r = z - vi
-                if abs(r) <= p.imu_bias_gate_m_s:
-                    v[i] = vi + k1 * dt * r
-                    bias[i] -= k2 * dt * r
-                    continue
-            v[i] = z
-        self.imu_bias = (bias[0], bias[1], bias[2])
-
     def _flow_to_heading(self, roll: float, pitch: float, bflow, fflow):
         """The PX4Flow units measure in the body frame; the estimate is in the heading frame.
         Turned by the autopilot's ESTIMATED roll and pitch (small angles: v_h = R_y R_x v_b), the
         component a unit does not see taken from the last estimate. Left in the body frame, a
         0.05 rad pitch at 0.4 m/s reads as a 0.02 m/s climb."""
-        vx_prev = self._v_prev[0]
-        vz_prev = self._dr_vz
+        vx_prev = self.obs[0].v
+        vz_prev = self.obs[2].v
         if bflow is not None:
             bflow = dataclasses.replace(
                 bflow, vx_m_s=bflow.vx_m_s + pitch * vz_prev, vy_m_s=bflow.vy_m_s - roll * vz_prev
@@ -523,20 +567,77 @@ class MAVStateUpdater:
 
     def _restart_after_stuck_flow(self) -> None:
         """A flow found stuck has fed its repeated value into the estimate since it stuck (the
-        check needs the IMU to disagree by ``flow_stuck_imu_dv_m_s`` first); the estimators that
-        take over start from what it would read now instead (``StuckCheck.likely_value``).
+        check needs the IMU to disagree by ``flow_stuck_imu_dv_m_s`` first); the observers that
+        take over restart from what it would read now instead (``StuckCheck.likely_value``).
         Continuing from the stuck value, the front range observer of mode 2 needed a second to
-        find the real speed, and the vehicle flew 0.15 m past the stop line meanwhile (safety
-        campaign, seed 3: bottom flow stuck at -0.10 m/s at a wall)."""
+        find the real speed, and the vehicle flew 0.15 m past the stop line meanwhile."""
+        ox, oy, oz = self.obs
         if self._newly_stuck["bottom"]:
             vx, vy = self._stuck["bottom"].likely_value()
             self.front.rate = -vx
-            self._dr_v = (vx, vy)
+            ox.restart(vx)
+            oy.restart(vy)
         if self._newly_stuck["front"]:
             vy, vz = self._stuck["front"].likely_value()
-            self._dr_v = (self._dr_v[0], vy)
-            self._dr_vz = vz
+            oy.restart(vy)
+            oz.restart(vz)
 
+    def _predict(self, ax: float, ay: float, az: float, dt: float) -> None:
+        """The observers one tick on with the IMU's acceleration (heading frame), the horizontal
+        speeds first turned by the heading's change since the last tick: a speed fixed in the hold
+        turns the other way in a turning frame (the operator may keep yawing in the alarm modes,
+        0.27 rad/s while braking). The biases are the sensor's and stay in the heading frame."""
+        ox, oy, oz = self.obs
+        yaw, prev = self._yaw, self._obs_yaw
+        self._obs_yaw = yaw
+        if yaw is not None and prev is not None:
+            d = math.remainder(yaw - prev, math.tau)
+            c, sn = math.cos(d), math.sin(d)
+            ox.v, oy.v = c * ox.v + sn * oy.v, -sn * ox.v + c * oy.v
+        ox.predict(ax, dt)
+        oy.predict(ay, dt)
+        oz.predict(az, dt)
+
+    def _new_reading(self, name: str, stamp_s: float) -> bool:
+        """Whether ``stamp_s`` is a reading of ``name`` not yet used (a measurement counts once)."""
+        if self._reading_stamps.get(name) == stamp_s:
+            return False
+        self._reading_stamps[name] = stamp_s
+        return True
+
+    def _range_rate_speeds(self, now: float) -> None:
+        """Alarm modes: no flow measures the horizontal speed, and the IMU-carried one drifts with
+        whatever accelerometer bias is left, so a station-keeping loop lets the vehicle creep away
+        (bottom flow quality 0 during a link loss: 0.55 m in 4 s beside walls the side sonars heard
+        2.6-3.9 m away). Beyond Table I, the horizontal sonars' range rates measure the speed along
+        their axes (a wall ahead closing at 1 m/s: vx = +1) and correct the observers.
+
+        A range rate is the slope of the last ``window_s`` of samples: the speed at their mean
+        stamp less the sonar's latency, not now; its innovation is taken against the estimate of
+        that moment and applied now (compared with the speed now, a vehicle braking as every range
+        sensor went silent took the lagging rate for its speed and coasted at 0.14 m/s for 2.5 s).
+        A new surface entering the beam fails the observer's gate; the left and right sonars
+        disagreeing by more than the gate's width (one of them hears a box sliding into its beam)
+        say nothing. Not used while turning: the range to a wall then changes without any
+        translation."""
+        p = self.p
+        if self._turning(now):
+            return
+        noise = p.range_rate_noise_m_s
+        for axis, sensors in ((0, (("front", -1.0),)), (1, (("left", -1.0), ("right", 1.0)))):
+            obs, found = self.obs[axis], []
+            for name, sign in sensors:
+                rate, t_mid = self._range_rates[name], self._slopes[name].t_mid
+                if rate is None or t_mid is None or not self._new_reading(f"{name}_slope", t_mid):
+                    continue
+                then = self._speed_at(t_mid - p.sonar_latency_s)
+                found.append((sign * rate, None if then is None else then[axis]))
+            # One slope's own noise is half of range_rate_noise_m_s (doubled there for the overlap
+            # of consecutive slopes); the difference of two sensors' has sqrt(2) times that.
+            if len(found) == 2 and abs(found[0][0] - found[1][0]) > p.observer_gate_sigma * noise / math.sqrt(2.0):
+                continue
+            for z, then in found:
+                obs.correct(z, noise, then=then)
     def _feed_slopes(self, now: float, m: Measurements) -> None:
         """Each horizontal sonar's range rate (least-squares slope of its last samples), or None."""
         p = self.p
@@ -550,77 +651,6 @@ class MAVStateUpdater:
             fresh = r is not None and now - r.stamp_s <= p.sonar_timeout_s
             rates[name] = slope.rate(now) if fresh else None
         self._range_rates = rates
-
-    def _range_rate_speeds(
-        self, now: float, dt: float, vx: float, vy: float
-    ) -> tuple[tuple[float, bool], tuple[float, bool]]:
-        """Alarm modes: no flow measures the horizontal speed, and the IMU-carried one (``vx``,
-        ``vy``) drifts with the accelerometer's bias, so a station-keeping loop lets the vehicle
-        creep away (safety campaign: bottom flow quality 0 during a link loss, 0.55 m in 4 s
-        beside walls the side sonars heard 2.6-3.9 m away). Beyond Table I, the horizontal
-        sonars' range rates then measure the speed along their axes (a wall ahead closing at
-        1 m/s: vx = +1), and the carried speed follows them with ``alarm_slope_tau_s``.
-
-        A range rate is the slope of the last ``window_s`` of samples: the speed at their mean
-        stamp (less the sonar's latency), not now. It is compared with the estimate of that
-        moment and the difference corrects the carried speed, which already holds the IMU's
-        account of what changed since (compared with the speed now instead, a vehicle braking
-        as every range sensor went silent took the lagging rate for its speed and coasted at
-        0.14 m/s for 2.5 s: safety campaign, seed 1 e1007). A difference larger than
-        ``alarm_slope_gate_m_s`` (a new surface entering the beam), or left and right sonars
-        disagreeing, is not used; nor while turning (the range to a wall then changes without
-        any translation). Returns each axis's speed and whether a range rate corrected it."""
-        p = self.p
-        if self._turning(now):
-            return (vx, False), (vy, False)
-        r = self._range_rates
-        k = min(1.0, dt / p.alarm_slope_tau_s)
-        gate = p.alarm_slope_gate_m_s
-
-        def innovation(name: str, sign: float, axis: int) -> float | None:
-            rate, t_mid = r[name], self._slopes[name].t_mid
-            if rate is None or t_mid is None:
-                return None
-            then = self._speed_at(t_mid - p.sonar_latency_s)
-            return sign * rate - (then[axis] if then is not None else (vx, vy)[axis])
-
-        def follow(v: float, innov: list[float | None]) -> tuple[float, bool]:
-            d = [x for x in innov if x is not None]
-            if not d or max(d) - min(d) > 0.5 * gate:
-                return v, False
-            e = sum(d) / len(d)
-            return (v + e * k, True) if abs(e) <= gate else (v, False)
-
-        return (
-            follow(vx, [innovation("front", -1.0, 0)]),
-            follow(vy, [innovation("left", -1.0, 1), innovation("right", 1.0, 1)]),
-        )
-
-    def _leak(self, v: float, dt: float, max_m_s2: float | None = None) -> float:
-        """One tick of the carried speed's leak towards zero (``alarm_speed_leak_s``), at most
-        ``alarm_leak_max_m_s2``: the leak bounds what an accelerometer bias the floor calibration
-        missed can build up (a bias up to that limit settles at bias x leak time), and the cap
-        keeps it from eating a real speed: leaking 3 s of a braking from 0.5 m/s, the estimate
-        reached zero with 0.08 m/s still true (safety campaign, seed 5 e1805). ``max_m_s2``: another
-        cap (the vertical speed's, ``alarm_vz_leak_max_m_s2``)."""
-        p = self.p
-        cap = p.alarm_leak_max_m_s2 if max_m_s2 is None else max_m_s2
-        step = min(abs(v) * dt / p.alarm_speed_leak_s, cap * dt)
-        return v - math.copysign(step, v)
-
-    def _carry(self, ax: float, ay: float, dt: float) -> tuple[float, float]:
-        """The carried horizontal speed (heading frame) one tick on: turned by the heading's change
-        since the last tick (a speed fixed in the hold turns the other way in a turning frame),
-        plus the IMU's acceleration (bias removed): the operator may keep yawing in the alarm
-        modes (safety campaign, seed 5 e1805: 0.27 rad/s while braking in mode -2)."""
-        vx, vy = self._dr_v
-        yaw, prev = self._yaw, self._carry_yaw
-        self._carry_yaw = yaw
-        if yaw is not None and prev is not None:
-            d = math.remainder(yaw - prev, math.tau)
-            c, sn = math.cos(d), math.sin(d)
-            vx, vy = c * vx + sn * vy, -sn * vx + c * vy
-        return vx + ax * dt, vy + ay * dt
 
     def _speed_at(self, t: float) -> tuple[float, float] | None:
         """The carried horizontal speed at time ``t`` (linear between ticks), from the history."""
@@ -651,7 +681,7 @@ class MAVStateUpdater:
         silent sector: no user motion into it) until they change. Safety campaign: a left sonar
         stuck at 1.65 m while the operator pushed at 0.77 m/s towards the wall; the stop came when
         it recovered, 0.15 m inside the line."""
-        vx, vy = self._v_prev
+        vx, vy = self.obs[0].v, self.obs[1].v
         drop = {}
         for name, r, speed in (("front", m.front_sonar, vx), ("left", m.left_sonar, vy), ("right", m.right_sonar, -vy)):
             if r is not None and r.range_m is not None and self._range_stuck[name].check(r.stamp_s, (r.range_m,), (speed,)):

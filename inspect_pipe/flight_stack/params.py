@@ -38,42 +38,44 @@ class EstimationParams:
     flow_latency_s: float = param(0.02, 0.0, 0.5, "s", "PX4Flow output delay (as simulated: integration interval and bus read)")
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s", "HRLV-EZ4 reading delay (as simulated; docs/flight.md, Simulator)")
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s", "TeraRanger One reading delay (as simulated)")
-    height_jump_m: float = param(0.15, 0.05, 2.0, "m", "range change not explained by vertical motion: a floor step")
+    height_jump_m: float = param(
+        0.15, 0.05, 2.0, "m", "a bottom or front range this far from the observer's prediction is another "
+        "surface (a floor step, a pillar's edge), not motion"
+    )
     height_step_min_m: float = param(
         0.4, 0.0, 2.0, "m", "no floor step is taken below this height (the range sensors clamp at their minimum)"
     )
     height_step_settle_samples: int = param(
         2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
     )
-    imu_bias_tau_s: float = param(
-        3.0, 0.5, 60.0, "s", "in flight, the accelerometer's heading-frame bias (attitude-estimate error included) "
-        "is learnt from the flow speeds at this time constant"
+    # Speed observers (estimation.SpeedObserver, one per axis): a Kalman filter of speed and
+    # accelerometer bias with the IMU as input. Sources: docs/flight.md, State estimation.
+    accel_noise_m_s2: float = param(
+        0.1, 0.001, 5.0, "m/s^2/sqrt(Hz)", "speed observers: noise of the IMU's heading-frame acceleration "
+        "(accelerometer noise, vibration, attitude-estimate noise x g)"
     )
-    imu_bias_gate_m_s: float = param(
-        0.3, 0.05, 2.0, "m/s", "bias learning: a flow speed further than this from the IMU-propagated one restarts it"
+    bias_walk_m_s2: float = param(
+        0.03, 0.0, 1.0, "m/s^2/sqrt(s)", "speed observers: how fast the accelerometer's heading-frame bias "
+        "wanders (the attitude estimate's drift and transients x g); learnt in ~3 s from the flow"
+    )
+    flow_noise_m_s: float = param(
+        0.1, 0.001, 2.0, "m/s", "speed observers: noise of one flow speed or front range rate (PX4Flow noise "
+        "and the rotation its gyro leaves in); with accel_noise_m_s2 the speed follows it at ~0.15 s"
+    )
+    range_rate_noise_m_s: float = param(
+        0.1, 0.001, 2.0, "m/s", "speed observers, alarm modes: noise of a sonar's range rate, a slope over 0.45 s "
+        "(0.015 m samples at 5 m give 0.05 m/s; consecutive slopes share 4 of 5 samples: x2)"
+    )
+    observer_gate_sigma: float = param(
+        4.0, 1.0, 20.0, "sigma", "speed observers: an innovation beyond this many standard deviations is not used (5 in a row: restart)"
     )
     alarm_climb_m_s: float = param(0.2, 0.01, 1.0, "m/s", "the '+val.' of the alarm modes: the steady alarm descent speed")
     alarm_descent_delay_s: float = param(
         1.0, 0.0, 10.0, "s", "alarm modes: '+val.' is filled in (the descent begins) once the alarm mode has lasted this long"
     )
-    alarm_speed_leak_s: float = param(
-        3.0, 0.1, 60.0, "s", "alarm modes: the IMU-propagated speeds leak to zero at this time constant (each capped: alarm_leak_max_m_s2, alarm_vz_leak_max_m_s2)"
-    )
-    alarm_leak_max_m_s2: float = param(
-        0.04, 0.0, 1.0, "m/s^2", "alarm modes: the horizontal speed's leak removes at most this much per second"
-    )
-    alarm_vz_leak_max_m_s2: float = param(
-        0.01, 0.0, 1.0, "m/s^2", "alarm modes: the carried vertical speed's leak (alarm_speed_leak_s) removes at most this much per second"
-    )
-    speed_blend_tau_s: float = param(
-        0.15, 0.0, 5.0, "s", "horizontal speed: the measurement (flow, range rate) blended with the IMU at this time "
-        "constant; below the attitude loop's band, where the PX4Flow carries rotation (the alarm modes carry it on)"
-    )
-    alarm_slope_tau_s: float = param(
-        0.3, 0.05, 5.0, "s", "alarm modes: the carried speed follows a horizontal sonar's range rate at this time constant"
-    )
-    alarm_slope_gate_m_s: float = param(
-        0.5, 0.05, 3.0, "m/s", "alarm modes: a range rate further than this from the carried speed is another surface's"
+    alarm_vz_leak_m_s2: float = param(
+        0.01, 0.0, 1.0, "m/s^2", "mode -2: the carried vertical speed relaxes towards zero at this rate (about the "
+        "vertical bias a short floor calibration leaves, which no sensor of mode -2 can see)"
     )
     alarm_slope_max_turn_rad: float = param(
         0.02, 0.0, 0.5, "rad", "alarm modes: range rates are not used while the heading turns more than this in their window"
@@ -225,6 +227,9 @@ class FlightMachineParams:
     touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s", "final landing speed (below the 1 m/s a floor contact counts as a crash)")
     impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
+    impact_noise_sigma: float = param(
+        5.0, 0.0, 20.0, "sigma", "... and beyond this many RMS of the IMU's recent unexplained lift in flight (vibration)"
+    )
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
 
 
