@@ -205,10 +205,8 @@ class HeightEstimator:
         raw = range_m + self.floor_offset_m
         # Near the floor the range sensors clamp at their minimum (sonar 0.3 m, TeraRanger 0.2 m):
         # a reading that parts from the prediction there is the clamp, not a step (a light
-        # vehicle's take-off outran its clamped sonar by 0.17 m). Predicted well above the floor,
-        # a low reading is a step: a box top 0.39 m below a vehicle at 1.39 m is no clamp.
-        pred_h = (o.value or 0.0) - self.floor_offset_m
-        low = min(range_m, pred_h) < self.step_min_height_m and pred_h < self.step_min_height_m + self.jump_m
+        # vehicle's take-off outran its clamped sonar by 0.17 m).
+        low = min(range_m, (o.value or 0.0) - self.floor_offset_m) < self.step_min_height_m
         if not fresh and not low:
             pred = o.at(t_meas)
             if abs(raw - pred) > self.jump_m or self._settling > 0:
