@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from inspect_pipe.flight_stack.behaviors import MAVBehaviors
 from inspect_pipe.flight_stack.control import FlightController
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater
-from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState
+from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState, ImpactDetector
 from inspect_pipe.flight_stack.messages import (
     HOVER,
     AttitudeSetpoint,
@@ -55,22 +55,7 @@ class OnboardStack:
         self._touchdown_thrust: float | None = None  # thrust when the landing's touchdown was detected
         self._pre_alarm_height_m: float | None = None  # height held when an alarm mode began
         self._was_alarm = False
-        self._lift_ms = 0.0  # mean square of the IMU's unexplained lift in flight (~1 s)
-
-    def _impact(self, m: Measurements, airborne: bool) -> bool:
-        """The floor's jolt: an upward acceleration the last set-point does not explain, beyond
-        ``impact_accel_m_s2`` and beyond ``impact_noise_sigma`` times what the IMU's unexplained
-        lift has recently been in flight (its RMS over ~1 s). Rotor vibration makes that noise:
-        at 1.15 m/s^2 a 3 m/s^2 jolt came by chance within 0.2 s of an alarm mode, the vehicle
-        took it for a touchdown and ramped its thrust down in mid-air (campaign seed 11 e174)."""
-        if m.imu is None:
-            return False
-        lift = self.controller.unexplained_lift_m_s2(m.imu.az_m_s2)
-        fm = self.params.flight_machine
-        threshold = max(fm.impact_accel_m_s2, fm.impact_noise_sigma * self._lift_ms ** 0.5)
-        if airborne:
-            self._lift_ms += (min(lift * lift, threshold * threshold) - self._lift_ms) / 50.0
-        return lift > threshold
+        self._impact = ImpactDetector(p.flight_machine.impact_accel_m_s2, p.flight_machine.impact_noise_sigma)
 
     @property
     def fsm(self) -> FlightState:
@@ -98,7 +83,8 @@ class OnboardStack:
                 takeoff_pressed=Button.TAKEOFF in buttons,
                 land_requested=Button.LAND in buttons or beh.land_request,
                 high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
-                impact=self._impact(measurements, airborne),
+                impact=measurements.imu is not None
+                and self._impact.update(self.controller.unexplained_lift_m_s2(measurements.imu.az_m_s2), airborne),
             ),
         )
         ctrl = self.controller

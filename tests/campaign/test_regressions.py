@@ -33,7 +33,10 @@ def test_regression_file_is_the_campaign_episode_its_header_names(path):
     text = path.read_text()
     m = re.match(r"# Campaign seed (\d+), episode (\d+)", text)
     assert m, f"{path.name}: no '# Campaign seed S, episode I' header"
-    gen = dict(generate_episode(int(m[1]), int(m[2]), honest_faults=False).doc)
+    # Episodes found before the honest simulator's fault classes replay without them; a header
+    # that says "honest faults" names an episode of the current generator.
+    honest = "honest faults" in text.splitlines()[0]
+    gen = dict(generate_episode(int(m[1]), int(m[2]), honest_faults=honest).doc)
     doc = yaml.safe_load(text)
     assert {k: v for k, v in doc.items() if k != "name"} == {k: v for k, v in gen.items() if k != "name"}
 

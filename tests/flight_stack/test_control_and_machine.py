@@ -263,3 +263,27 @@ def test_a_vertical_speed_step_is_followed_without_the_integrators_overshoot():
     c2 = FlightController()
     v2 = _vertical_step(c2, 0.2, 15.0, trim=1.0)
     assert sum(v2[-100:]) / 100 == pytest.approx(0.2, abs=0.005)
+
+
+def test_impact_detector_ignores_rotor_vibration_but_not_the_floors_jolt():
+    import random
+
+    from inspect_pipe.flight_stack.flight_machine import ImpactDetector
+
+    # GIVEN 60 s of flight with rotor vibration: unexplained lift of 1.15 m/s^2 RMS (seed 11 e174)
+    rng = random.Random(5)
+    noise = [rng.gauss(0.0, 1.15) for _ in range(3000)]
+    judged = ImpactDetector(3.0, 5.0)
+    fixed = ImpactDetector(3.0, 0.0)  # the fixed 3 m/s^2 threshold alone
+    false_judged = sum(judged.update(x, airborne=True) for x in noise)
+    false_fixed = sum(fixed.update(x, airborne=True) for x in noise)
+    # THEN the fixed threshold takes spikes for touchdowns (0.5 % of ticks), the noise-judged one none
+    assert false_fixed >= 5
+    assert false_judged == 0
+    # AND the floor's jolt (a 0.5 m/s landing stopped within a tick: 25 m/s^2) is still one
+    assert judged.update(25.0, airborne=False)
+    # AND without vibration the threshold stays the fixed 3 m/s^2
+    calm = ImpactDetector(3.0, 5.0)
+    for _ in range(200):
+        calm.update(rng.gauss(0.0, 0.1), airborne=True)
+    assert calm.update(3.2, airborne=True)

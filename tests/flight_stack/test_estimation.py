@@ -495,3 +495,60 @@ def test_flow_error_at_attitude_loop_frequencies_is_filtered_by_the_imu_blend():
     # it rolled the vehicle back and diverged with height), centred on the true speed
     assert max(abs(v) for v in vy_est) < 0.075
     assert abs(sum(vy_est) / len(vy_est)) < 0.01
+
+
+def test_speed_observer_learns_the_accelerometer_bias_and_gates_an_outlier():
+    from inspect_pipe.flight_stack.estimation import SpeedObserver
+
+    # GIVEN an accelerometer reading +0.05 m/s^2 too much while a flow (0.1 m/s noise) says 0.2 m/s
+    rng = random.Random(2)
+    obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
+    for _ in range(1000):  # 20 s at 50 Hz
+        obs.predict(0.05, 0.02)
+        obs.correct(0.2 + rng.gauss(0.0, 0.1), 0.1)
+    # THEN the speed is the flow's and the bias is learnt
+    assert obs.v == pytest.approx(0.2, abs=0.03)
+    assert obs.b == pytest.approx(0.05, abs=0.02)
+    # AND carried on alone for 2 s, the speed stays (the bias learnt is removed)
+    for _ in range(100):
+        obs.predict(0.05, 0.02)
+    assert obs.v == pytest.approx(0.2, abs=0.06)
+    # AND a reading 2 m/s off (a glitch) is not used, while the grown variance takes a real one
+    assert not obs.correct(2.2, 0.1)
+    assert obs.correct(0.25, 0.1)
+
+
+def test_a_measurement_that_shares_the_imus_errors_corrects_the_speed_but_not_the_bias():
+    from inspect_pipe.flight_stack.estimation import SpeedObserver
+
+    obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
+    for _ in range(200):
+        obs.predict(0.0, 0.02)
+        obs.correct(0.3, 0.1, learn_bias=False)
+    assert obs.v == pytest.approx(0.3, abs=0.01)
+    assert obs.b == 0.0
+
+
+def test_the_front_range_re_seats_on_a_jump_instead_of_reading_it_as_motion():
+    from inspect_pipe.flight_stack.estimation import RangeObserver
+
+    # GIVEN a front range observer closing at 0.2 m/s on a wall, then a 1.8 m step of the range
+    # (the vehicle slid past a pillar's end: a farther surface), with the IMU feeling nothing
+    upd = MAVStateUpdater()
+    obs = RangeObserver(k1=4.5, k2=6.75, k3=3.375, jump_m=upd.p.height_jump_m)
+    t = 0.0
+    for k in range(50):
+        t = 0.02 * k
+        obs.propagate(t, 0.0)
+        if k % 5 == 0:
+            obs.correct(3.0 - 0.2 * t, t)
+    rate_before, bias_before = obs.rate, obs.bias
+    for k in range(50, 60):
+        t = 0.02 * k
+        obs.propagate(t, 0.0)
+        if k % 5 == 0:
+            obs.correct(4.8 - 0.2 * t, t)
+    # THEN the range is the new surface's, and rate and bias are what they were
+    assert obs.value == pytest.approx(4.8 - 0.2 * t, abs=0.05)
+    assert obs.rate == pytest.approx(rate_before, abs=0.02)
+    assert obs.bias == pytest.approx(bias_before, abs=0.02)
