@@ -21,12 +21,8 @@ class PID:
     def __init__(
         self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf,
         unwind_factor: float = 1.0, unwind_threshold: float = math.inf, integrate_band: float = math.inf,
-        leak_s: float = 0.0,
     ) -> None:
         self.kp, self.ki, self.kd = kp, ki, kd
-        # Leak (time constant, 0: none): the integral decays towards zero on its own, so that it
-        # holds only what a faster estimator (a disturbance observer) does not.
-        self.leak_s = leak_s
         self.integral_limit = integral_limit
         # Integral separation: errors beyond ``integrate_band`` are transients (a braking
         # manoeuvre), not a missing trim; integrated, they left a trim behind that crept the
@@ -58,8 +54,6 @@ class PID:
             if unwind and self.integral * ie < 0.0 and abs(ie) > self.unwind_threshold:
                 ki *= self.unwind_factor
             self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + ki * ie * dt))
-        if not freeze and dt > 0.0 and self.leak_s > 0.0:
-            self.integral *= max(0.0, 1.0 - dt / self.leak_s)
         if rate is None:
             rate = 0.0 if self._prev_error is None or dt <= 0.0 else (error - self._prev_error) / dt
         self._prev_error = error
@@ -141,15 +135,12 @@ class FlightController:
     def __init__(self, params: ControlParams | None = None) -> None:
         p = self.p = params or ControlParams()
         lim = p.integral_limit_m_s2
-        # With the horizontal disturbance observers on, the XY integrators leak: the observer
-        # learns a gust within its time constant, and what the integrator had gathered meanwhile
-        # stayed behind when the gust ended and, unwound only through the speed error it caused
-        # (kp / ki = 3.7 s), crept the vehicle at 0.12 m/s past the stop line (safety campaign,
-        # seed 1 e8).
-        leak = p.speed_integral_leak_s if p.accel_observer_xy_tau_s > 0.0 and p.accel_observer_xy_limit_m_s2 > 0.0 else 0.0
-        xy = dict(integral_limit=lim, integrate_band=p.speed_integrate_band_m_s, leak_s=leak)
-        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, **xy)
-        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, p.speed_kd, **xy)
+        # PI on the XY speeds: no derivative (the flow speed is too noisy to differentiate), and
+        # no leak of the integrators (a leak makes the loop proportional-only against whatever
+        # bias is left: steady speeds ran 10 % below the command, 0.179 m/s for 0.20).
+        xy = dict(integral_limit=lim, integrate_band=p.speed_integrate_band_m_s)
+        self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
+        self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
         vlim = p.vertical_integral_limit_m_s2
         self.pid_vz = PID(
             p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
@@ -161,7 +152,7 @@ class FlightController:
         self._vz_ref: float | None = None  # the vertical speed reference model (see update)
         # Disturbance observers (m/s^2 the IMU shows missing): thrust shortfall, wind.
         lag = p.accel_observer_lag_s
-        obs_xy = dict(tau_s=p.accel_observer_xy_tau_s, limit=p.accel_observer_xy_limit_m_s2, lag_s=lag)
+        obs_xy = dict(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_xy_limit_m_s2, lag_s=lag)
         self.obs_x = AccelObserver(**obs_xy)
         self.obs_y = AccelObserver(**obs_xy)
         self.obs_z = AccelObserver(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_limit_m_s2, lag_s=lag)

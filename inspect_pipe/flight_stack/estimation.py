@@ -289,7 +289,8 @@ class MAVStateUpdater:
     def __init__(self, params: EstimationParams | None = None) -> None:
         self.p = params or EstimationParams()
         p = self.p
-        k = dict(k1=p.observer_k1_1_s, k2=p.observer_k2_1_s2, k3=p.observer_k3_1_s3)
+        pole = p.observer_pole_1_s
+        k = dict(k1=3.0 * pole, k2=3.0 * pole * pole, k3=pole**3)
         self.height = HeightEstimator(
             jump_m=p.height_jump_m, settle_samples=p.height_step_settle_samples, step_min_height_m=p.height_step_min_m, **k
         )

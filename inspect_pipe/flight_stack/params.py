@@ -35,7 +35,6 @@ class EstimationParams:
     tof_timeout_s: float = param(0.1, 0.01, 1.0, "s", "TeraRanger older than this is N/A")
     sonar_max_range_m: float = param(4.9, 1.0, 7.0, "m", "HRLV-EZ4 usable range")
     tof_max_range_m: float = param(13.8, 1.0, 14.0, "m", "TeraRanger One usable range")
-    flow_latency_s: float = param(0.02, 0.0, 0.5, "s", "PX4Flow output delay (as simulated: integration interval and bus read)")
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s", "HRLV-EZ4 reading delay (as simulated; docs/flight.md, Simulator)")
     tof_latency_s: float = param(0.01, 0.0, 0.5, "s", "TeraRanger One reading delay (as simulated)")
     height_jump_m: float = param(
@@ -103,10 +102,10 @@ class EstimationParams:
     sonar_beam_half_angle_deg: float = param(
         15.0, 0.0, 40.0, "deg", "horizontal sonars: half-width of the beam (the reading is the nearest echo in it)"
     )
-    # Range observers: triple pole at -1.5 rad/s (k1 = 3L, k2 = 3L^2, k3 = L^3).
-    observer_k1_1_s: float = param(4.5, 0.1, 50.0, "1/s", "range observer position gain")
-    observer_k2_1_s2: float = param(6.75, 0.01, 500.0, "1/s^2", "range observer rate gain")
-    observer_k3_1_s3: float = param(3.375, 0.0, 500.0, "1/s^3", "range observer accelerometer-bias gain")
+    observer_pole_1_s: float = param(
+        1.5, 0.1, 20.0, "1/s", "range observers (height, front range): triple pole of the range / rate / "
+        "accelerometer-bias observer (gains 3L, 3L^2, L^3)"
+    )
 
 
 @dataclass(frozen=True)
@@ -158,7 +157,6 @@ class ControlParams:
     tick_hz: float = param(50.0, 10.0, 500.0, "Hz", "rate of estimation, behaviours and control")
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
     speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2", "XY speed PID integral: the trim against drag and wind the feed-forward misses")
-    speed_kd: float = param(0.0, 0.0, 5.0, "1", "XY speed PID derivative: off (the flow speed is too noisy to differentiate)")
     vz_unwind_factor: float = param(
         5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
         "speed error above vz_unwind_threshold_m_s (the trim a battery sag left behind)"
@@ -168,9 +166,6 @@ class ControlParams:
     )
     speed_integrate_band_m_s: float = param(
         0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
-    )
-    speed_integral_leak_s: float = param(
-        0.0, 0.0, 60.0, "s", "XY speed integrators leak at this time constant while the horizontal observers run (0: no leak)"
     )
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
@@ -187,13 +182,10 @@ class ControlParams:
         6.0, 0.0, 10.0, "m/s^2", "vertical trim range: +-30 % mass or thrust needs ~4.2 m/s^2"
     )
     accel_observer_tau_s: float = param(
-        0.25, 0.0, 5.0, "s", "vertical disturbance observer (IMU): time constant (0: off)"
+        0.25, 0.0, 5.0, "s", "disturbance observers (IMU), vertical and horizontal: time constant (0: off)"
     )
     accel_observer_limit_m_s2: float = param(
         6.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up (as the vertical trim)"
-    )
-    accel_observer_xy_tau_s: float = param(
-        0.25, 0.0, 5.0, "s", "horizontal disturbance observers: time constant (0: off)"
     )
     accel_observer_xy_limit_m_s2: float = param(
         1.5, 0.0, 10.0, "m/s^2", "horizontal disturbance observers: largest wind force it makes up (0: off)"

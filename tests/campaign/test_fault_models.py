@@ -81,7 +81,7 @@ def test_gust_pushes_and_mass_error_acts():
 
     gust = {**BASE, "faults": [{"t": 5, "duration_s": 3, "fault": "gust", "wind_m_s": [2.0, 0, 0]}]}
     # With the wind-rejecting disturbance observer off, the gust moves the vehicle downwind
-    no_observer = StackParams(control=ControlParams(accel_observer_xy_tau_s=0.0))
+    no_observer = StackParams(control=ControlParams(accel_observer_xy_limit_m_s2=0.0))
     pushed = drift(gust, no_observer) - drift(BASE, no_observer)
     assert pushed > 0.05
     # AND with it on (the default), the vehicle gives way less than half as far
