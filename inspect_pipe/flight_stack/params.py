@@ -136,7 +136,8 @@ class BehaviorParams:
     link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
     covered_half_angle_deg: float = param(15.0, 0.0, 45.0, "deg", "half-width of the sonar beams: motion within it of an axis is seen")
     blind_attenuation_start_m: float = param(
-        3.0, 1.0, 6.0, "m", "diagonal motion between the beams slows from this distance to the nearer wall"
+        3.0, 1.0, 6.0, "m", "within this distance of the nearer wall a diagonal push between the beams flies only its "
+        "component along the axis nearer its direction"
     )
     inspect_speed_m_s: float = param(0.2, 0.05, 0.5, "m/s", "fixed speed in inspection mode")
     stick_deadband_m_s: float = param(0.05, 0.0, 0.5, "m/s", "stick commands below this are zero (joystick centre noise)")

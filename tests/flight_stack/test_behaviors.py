@@ -53,20 +53,23 @@ def test_attenuated_go_attenuates_only_towards_the_obstacle():
     assert side.vy_m_s == pytest.approx(0.3)  # sliding along the wall: seen by the left beam
 
 
-def test_diagonal_motion_between_the_beams_slows_near_a_wall():
-    # GIVEN a diagonal stick (45 deg: outside the +-15 deg beams) 2 m from the front wall
-    v = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.5, 0.0, 0.0), front=2.0, left=4.0), 0.02)
-    # THEN the whole vector is scaled by the attenuation from 3 m to 1 m on the nearer wall
-    k = (2.0 - P.safe_distance_m) / (P.blind_attenuation_start_m - P.safe_distance_m)
-    assert (v.vx_m_s, v.vy_m_s) == (pytest.approx(0.5 * k), pytest.approx(0.5 * k))
+def test_a_diagonal_push_between_the_beams_flies_only_its_sensed_axis_near_a_wall():
+    # GIVEN a diagonal stick (40 deg: outside the +-15 deg beams) 2 m from the front wall
+    v = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.42, 0.0, 0.0), front=2.0, left=4.0), 0.02)
+    # THEN only the component along the axis nearer its direction (forward) is flown
+    assert (v.vx_m_s, v.vy_m_s) == (pytest.approx(0.5), 0.0)
+    # AND a 50 deg push flies sideways only, attenuated by the left wall it moves towards
+    side = AttenuatedGo(P).update(_in(SpeedCommand(0.42, 0.5, 0.0, 0.0), front=2.0, left=1.25), 0.02)
+    assert (side.vx_m_s, side.vy_m_s) == (0.0, pytest.approx(0.25))
     # AND far from walls, or within a beam, nothing changes
     free = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.5, 0.0, 0.0), front=None, left=None), 0.02)
     assert (free.vx_m_s, free.vy_m_s) == (0.5, 0.5)
+    far = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.5, 0.0, 0.0), front=3.5, left=4.0), 0.02)
+    assert (far.vx_m_s, far.vy_m_s) == (0.5, 0.5)
     near_axis = AttenuatedGo(P).update(_in(SpeedCommand(0.5, 0.1, 0.0, 0.0), front=2.0, left=4.0), 0.02)
     assert (near_axis.vx_m_s, near_axis.vy_m_s) == (0.5, 0.1)
     back = AttenuatedGo(P).update(_in(SpeedCommand(-0.4, 0, 0, 0), front=1.1), 0.02)
     assert back.vx_m_s == pytest.approx(-0.4)
-
 
 def test_attenuated_go_stops_descents_near_the_floor():
     v = AttenuatedGo(P).update(_in(SpeedCommand(0, 0, -0.5, 0), down=P.floor_clearance_m), 0.02)
