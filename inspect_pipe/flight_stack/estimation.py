@@ -1,14 +1,15 @@
-"""State estimation: the paper's ``MAV_state_updater`` node and its height estimator.
+"""State estimation: the paper's ``MAV_state_updater`` node (Table I).
 
-Speeds and height are built from whichever sensors are valid (Table I); optical-flow speeds are
-always preferred over range derivatives. Range derivatives come from a small observer that
-propagates with the autopilot's IMU acceleration between the (10 Hz, delayed) range samples, so a
-derivative is neither noisy nor late. The alarm modes (-1, -2) fill the missing state with a
-positive vertical speed, so that the speed controllers make the vehicle descend; their horizontal
-speed, zero in the paper, is here the last measured one carried on with the IMU and corrected by
-the horizontal sonars' range rates where they hear a wall (see ``_range_rate_speeds``).
+:func:`select_mode` maps the valid sensor set to the mode; :class:`MAVStateUpdater` feeds, per
+mode, each measurement to the state it measures: the horizontal and vertical speeds are one
+:class:`SpeedObserver` per axis (speed and accelerometer bias, the IMU as input), the height and
+the front range are :class:`RangeObserver` s (the height one tells floor steps from motion), all in
+``observers.py``. Optical-flow speeds are preferred over range derivatives. The alarm modes (-1,
+-2) fill the missing vertical state with a positive speed, so that the speed controllers make the
+vehicle descend; their horizontal speed, zero in the paper, is here the observers' speed carried
+on with the IMU and corrected by the horizontal sonars' range rates where they hear a wall
+(``_range_rate_speeds``).
 """
-
 from __future__ import annotations
 
 import dataclasses
@@ -23,239 +24,11 @@ from inspect_pipe.flight_stack.messages import (
     RangeReading,
     StateEstimate,
 )
+from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory, oblique_wall
 from inspect_pipe.flight_stack.params import EstimationParams
 
-__all__ = ["HeightEstimator", "MAVStateUpdater", "RangeObserver", "RangeSlope", "SensorStatus", "select_mode"]
-
-
-class RangeObserver:
-    """Range and range rate: propagated with a measured acceleration, corrected by delayed samples.
-
-    Third-order observer (range, rate, accelerometer bias) with gains ``k1`` (1/s), ``k2``
-    (1/s^2), ``k3`` (1/s^3); state valid at ``self.t``. Without the bias state a 0.03 m/s^2
-    accelerometer bias would leave a steady rate error of k1*bias/k2, and the vehicle would creep.
-    """
-
-    def __init__(
-        self, *, k1: float, k2: float, k3: float = 0.0, max_gap_s: float = 1.0, max_bias: float = 0.5,
-        jump_m: float | None = None,
-    ) -> None:
-        self.k1, self.k2, self.k3 = k1, k2, k3
-        #: a sample this far from the prediction is another surface (a wall's edge passed, a
-        #: pillar come into the beam), not motion: the range re-seats, rate and bias stay
-        self.jump_m = jump_m
-        self.max_bias = max_bias  # m/s^2: a calibrated accelerometer's residual bias is far below
-        self.bias = 0.0
-        self.max_gap_s = max_gap_s
-        self.value: float | None = None
-        self.rate = 0.0
-        self.t = 0.0
-        self.last_sample_t: float | None = None
-        self.rate_measured = False  # the last propagation took a measured rate (optical flow)
-
-    def propagate(self, t: float, accel: float = 0.0, rate: float | None = None) -> None:
-        """Advance to ``t`` with ``accel``; or with a measured ``rate`` that replaces the estimate."""
-        dt = t - self.t
-        self.t = t
-        self.rate_measured = rate is not None
-        if self.value is None or dt <= 0.0:
-            if rate is not None:
-                self.rate = rate
-            return
-        if rate is not None:
-            self.value += 0.5 * (self.rate + rate) * dt
-            self.rate = rate
-        else:
-            a = accel - self.bias
-            self.value += self.rate * dt + 0.5 * a * dt * dt
-            self.rate += a * dt
-
-    def at(self, t_meas: float) -> float:
-        """The estimate back-dated to ``t_meas`` (a delayed sample is compared with this)."""
-        return (self.value or 0.0) - self.rate * (self.t - t_meas)
-
-    def correct(self, z: float, t_meas: float) -> None:
-        last, self.last_sample_t = self.last_sample_t, t_meas
-        if self.value is None or last is None or t_meas - last > self.max_gap_s:
-            self.value = z + self.rate * (self.t - t_meas)
-            return
-        ts = min(max(t_meas - last, 1e-3), 0.3)
-        r = z - self.at(t_meas)
-        if self.jump_m is not None and abs(r) > self.jump_m:
-            # Taken as motion, the front range's step from 1.0 to 2.8 m (the vehicle slid past a
-            # pillar's end) read as 2 m/s away from it, the bias state hit its limit, and the
-            # speed loop flew the vehicle at 2 m/s into the far wall (campaign seed 12 e80).
-            self.value += r
-            return
-        self.value += min(self.k1 * ts, 1.0) * r
-        if self.rate_measured:
-            # The rate comes from optical flow, not from the accelerometer: the residual says
-            # nothing about the accelerometer's bias. Integrated anyway, sonar noise walked the
-            # bias to ~3 m/s^2 over a long flight, and the first IMU-propagated second after a
-            # bottom-flow loss drove the speed estimate the wrong way (safety campaign: mode 2 at
-            # a wall, estimated -0.7 m/s while flying into it at +0.7 m/s).
-            return
-        self.rate += self.k2 * ts * r
-        self.bias = max(-self.max_bias, min(self.max_bias, self.bias - self.k3 * ts * r))
-
-
-class SpeedObserver:
-    """One axis's speed and the accelerometer's bias along it: a two-state Kalman filter.
-
-    State ``(v, b)``: the speed along the axis (heading frame, m/s) and the accelerometer's bias
-    along it (m/s^2; mostly the autopilot's attitude-estimate error times g, which wanders in
-    flight). :meth:`predict` carries the speed with the IMU's acceleration less ``b``;
-    :meth:`correct` takes whatever measures the speed (a PX4Flow speed, a range rate) with its
-    noise. An innovation further than ``gate`` standard deviations is not used (a new surface in
-    a sonar's beam, a flow glitch). With no measurement used (the alarm modes, rejections) the
-    speed is carried on with the IMU and its variance grows, so the gate widens until a
-    measurement consistent with that uncertainty is taken again.
-
-    ``accel_noise`` (m/s^2/sqrt(Hz)) and ``bias_walk`` (m/s^2/sqrt(s)) are the process noise
-    densities; the per-measurement noise comes with each :meth:`correct`.
-    """
-
-    V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
-
-    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate")
-
-    def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
-        self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
-        self.v = self.b = 0.0
-        self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
-
-    def predict(self, accel: float, dt: float) -> None:
-        if dt <= 0.0:
-            return
-        self.v += (accel - self.b) * dt
-        p00, p01, p11 = self.p00, self.p01, self.p11
-        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + self.q_a * dt
-        self.p01 = p01 - dt * p11
-        self.p11 = p11 + self.q_b * dt
-
-    def correct(self, z: float, noise: float, *, then: float | None = None, learn_bias: bool = True) -> bool:
-        """Take a measurement ``z`` of the speed with standard deviation ``noise``; ``then``: the
-        estimate of the moment ``z`` was measured (a delayed measurement's innovation is taken
-        against it and applied now). ``learn_bias=False``: a measurement that shares the IMU's
-        errors (a rate that is itself the IMU's integral corrected by a range) corrects the
-        speed only; the bias is a "consider" state for it (Schmidt-Kalman). Returns whether it
-        was used."""
-        y = z - (self.v if then is None else then)
-        s = self.p00 + noise * noise
-        if y * y > self.gate * self.gate * s:
-            return False
-        k0 = self.p00 / s
-        self.v += k0 * y
-        p00, p01 = self.p00, self.p01
-        self.p00 = (1.0 - k0) * p00
-        self.p01 = (1.0 - k0) * p01
-        if learn_bias:
-            k1 = p01 / s
-            self.b += k1 * y
-            self.p11 -= k1 * p01
-        return True
-
-    def restart(self, v: float) -> None:
-        """Restart the speed at ``v`` (its variance too); the bias is kept."""
-        self.v, self.p00, self.p01 = v, self.V0, 0.0
-
-    @property
-    def sigma_v(self) -> float:
-        return math.sqrt(max(self.p00, 0.0))
-
-
-class HeightEstimator:
-    """Altitude over the take-off floor from a downward range, robust to floor steps.
-
-    A change between consecutive ranges that vertical motion cannot explain (more than
-    ``jump_m`` away from the prediction) is a discontinuity of the floor, e.g. overflying a box:
-    it moves the floor offset instead of the altitude. ``height`` (range to the surface below)
-    steps with the floor while ``altitude`` stays continuous.
-    """
-
-    def __init__(
-        self, *, jump_m: float, k1: float, k2: float, k3: float = 0.0, settle_samples: int = 2, step_min_height_m: float = 0.4
-    ) -> None:
-        self.jump_m = jump_m
-        self.step_min_height_m = step_min_height_m
-        self.settle_samples = settle_samples
-        self._settling = 0  # samples after a floor step still taken as the floor settling
-        self.floor_offset_m = 0.0
-        self.obs = RangeObserver(k1=k1, k2=k2, k3=k3)
-
-    @property
-    def altitude_m(self) -> float:
-        return self.obs.value or 0.0
-
-    @property
-    def height_m(self) -> float:
-        return self.altitude_m - self.floor_offset_m
-
-    @property
-    def rate_m_s(self) -> float:
-        return self.obs.rate
-
-    def propagate(self, t: float, accel: float = 0.0, rate: float | None = None) -> None:
-        self.obs.propagate(t, accel, rate)
-
-    def update(self, range_m: float, t_meas: float) -> None:
-        o = self.obs
-        fresh = o.value is None or o.last_sample_t is None or t_meas - o.last_sample_t > o.max_gap_s
-        raw = range_m + self.floor_offset_m
-        # Near the floor the range sensors clamp at their minimum (sonar 0.3 m, TeraRanger 0.2 m):
-        # a reading that parts from the prediction there is the clamp, not a step (a light
-        # vehicle's take-off outran its clamped sonar by 0.17 m).
-        low = min(range_m, (o.value or 0.0) - self.floor_offset_m) < self.step_min_height_m
-        if not fresh and not low:
-            pred = o.at(t_meas)
-            if abs(raw - pred) > self.jump_m or self._settling > 0:
-                # A step of the floor; and for the next samples, while the beam's footprint still
-                # straddles the edge, what the prediction does not explain belongs to the floor
-                # too: taken from the first sample alone, a slant echo off the box's edge (1.43 m
-                # over a 1.55 m floor) left the altitude 0.12 m high for the rest of the flight.
-                self._settling = self.settle_samples if abs(raw - pred) > self.jump_m else self._settling - 1
-                self.floor_offset_m += pred - raw
-                raw = pred
-        o.correct(raw, t_meas)
-
-
-class RangeSlope:
-    """Rate of change of one range sensor from its last samples (least-squares line over
-    ``window_s``); None with fewer than ``min_samples`` consecutive valid samples."""
-
-    def __init__(self, *, window_s: float = 0.45, max_gap_s: float = 0.3, min_samples: int = 3) -> None:
-        self.window_s, self.max_gap_s, self.min_samples = window_s, max_gap_s, min_samples
-        self.samples: list[tuple[float, float]] = []
-        self._fit: float | None = None  # the line's slope over the current samples (cached)
-        self._fit_valid = False
-        #: mean stamp of the samples the last rate was fitted to: the rate is the speed there
-        self.t_mid: float | None = None
-
-    def add(self, t: float, range_m: float | None) -> None:
-        self._fit_valid = False
-        if range_m is None:
-            self.samples.clear()
-            return
-        if self.samples and t - self.samples[-1][0] > self.max_gap_s:
-            self.samples.clear()
-        self.samples.append((t, range_m))
-        while self.samples and t - self.samples[0][0] > self.window_s:
-            self.samples.pop(0)
-
-    def rate(self, now: float) -> float | None:
-        s = self.samples
-        if len(s) < self.min_samples or now - s[-1][0] > self.max_gap_s + 0.1:
-            return None
-        if not self._fit_valid:  # samples come at 10 Hz, the question at 50 Hz
-            n = len(s)
-            tm = sum(t for t, _ in s) / n
-            rm = sum(r for _, r in s) / n
-            den = sum((t - tm) ** 2 for t, _ in s)
-            self._fit = None if den <= 0.0 else sum((t - tm) * (r - rm) for t, r in s) / den
-            self._fit_valid = True
-            self.t_mid = tm
-        return self._fit
+__all__ = ["MAVStateUpdater", "SensorStatus", "select_mode"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -737,69 +510,6 @@ class MAVStateUpdater:
         if mem is None:
             return d
         return mem if d is None else min(d, mem)
-
-
-class StuckCheck:
-    """A sensor that repeats its last value bit for bit (a hung driver or bus re-sending the last
-    frame, freshly stamped) while another sensor says the value has changed is stuck: after
-    ``samples`` equal readings, once the value when the repeats began (``reference``, else the
-    reading itself) plus the integral of ``rates`` since (flow: the IMU's acceleration; range: the
-    speed along the sensor's axis) differs from the repeated reading by more than
-    ``change_limit``. A
-    repeat alone is not enough: a quantised output (PX4Flow's integer pixel flow, a 1 mm sonar)
-    repeats in steady flight. Safety campaign: a bottom flow stuck at -0.43 m/s during a link loss made the
-    station keeping accelerate the vehicle to 2 m/s into a wall; a front flow stuck at +0.03 m/s
-    vertical during a landing let the descent speed up to 1.5 m/s into the floor."""
-
-    def __init__(self, samples: int, change_limit: float) -> None:
-        self.samples, self.change_limit = samples, change_limit
-        self._stamp: float | None = None
-        self._value: tuple[float, ...] | None = None
-        self._repeats = 0
-        self._dv: list[float] = []  # IMU speed change since the repeats began, per component
-        self._ref: tuple[float, ...] = ()  # the true value when the repeats began (best estimate)
-        self._latched = False
-
-    def check(
-        self, stamp_s: float, value: tuple[float, ...], rates: tuple[float, ...],
-        reference: tuple[float | None, ...] | None = None,
-    ) -> bool:
-        """True while the sensor is stuck; call with every reading and the rates of change that
-        other sensors give for its components (a repeated stamp is ignored). ``reference``: the
-        best estimate of each component without this reading's noise (a filtered speed; None:
-        the reading itself), taken as the true value when the repeats begin. Judged from the
-        repeated reading instead, a stuck bottom flow 0.07 m/s off the true speed (its noise)
-        needed 0.22 m/s of real change to be found, and the vehicle crept 0.11 m inside the stop
-        line meanwhile (safety campaign, seed 1 e124)."""
-        if stamp_s != self._stamp:
-            if value == self._value and self._stamp is not None:
-                self._repeats += 1
-                if self._repeats == 1:  # the estimate has seen the first reading: the true value then
-                    ref = reference or (None,) * len(value)
-                    self._ref = tuple(v if r is None else r for v, r in zip(value, ref))
-                dt = stamp_s - self._stamp
-                self._dv = [dv + a * dt for dv, a in zip(self._dv, rates)]
-            else:
-                self._repeats = 0
-                self._dv = [0.0] * len(value)
-                self._latched = False
-                self._ref = value
-            self._stamp, self._value = stamp_s, value
-        if self._repeats < self.samples - 1:
-            return False
-        # Once found, stuck until the value changes: the integrated change wanders back under
-        # the limit when the vehicle brakes, and the stuck value was trusted again (safety
-        # campaign, seed 3: flickering between the flow and the range-rate estimate at a wall).
-        self._latched = self._latched or max(abs(x) for x in self._disagreement()) > self.change_limit
-        return self._latched
-
-    def _disagreement(self) -> list[float]:
-        return [r + dv - v for r, dv, v in zip(self._ref, self._dv, self._value or ())]
-
-    def likely_value(self) -> tuple[float, ...]:
-        """What the sensor would read now had it not stuck: the reference when the repeats
-        began plus the change the other sensors integrated since."""
-        return tuple(r + dv for r, dv in zip(self._ref, self._dv))
 
 
 _HALF_PI = 1.5707963267948966

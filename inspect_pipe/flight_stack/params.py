@@ -48,7 +48,7 @@ class EstimationParams:
     height_step_settle_samples: int = param(
         2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
     )
-    # Speed observers (estimation.SpeedObserver, one per axis): a Kalman filter of speed and
+    # Speed observers (observers.SpeedObserver, one per axis): a Kalman filter of speed and
     # accelerometer bias with the IMU as input. Sources: docs/flight.md, State estimation.
     accel_noise_m_s2: float = param(
         0.1, 0.001, 5.0, "m/s^2/sqrt(Hz)", "speed observers: noise of the IMU's heading-frame acceleration "

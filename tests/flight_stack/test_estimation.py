@@ -9,7 +9,8 @@ import statistics
 
 import pytest
 
-from inspect_pipe.flight_stack.estimation import HeightEstimator, MAVStateUpdater, SensorStatus, select_mode
+from inspect_pipe.flight_stack.estimation import MAVStateUpdater, SensorStatus, select_mode
+from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver
 from inspect_pipe.flight_stack.messages import (
     BottomFlow,
     EstimationMode,
@@ -150,8 +151,6 @@ def test_height_estimator_follows_a_real_climb():
 
 
 def test_range_slope_fits_the_closing_rate_and_resets_on_gaps_and_missing_echoes():
-    from inspect_pipe.flight_stack.estimation import RangeSlope
-
     s = RangeSlope()
     assert s.rate(0.0) is None
     for k in range(6):
@@ -498,8 +497,6 @@ def test_flow_error_at_attitude_loop_frequencies_is_filtered_by_the_imu_blend():
 
 
 def test_speed_observer_learns_the_accelerometer_bias_and_gates_an_outlier():
-    from inspect_pipe.flight_stack.estimation import SpeedObserver
-
     # GIVEN an accelerometer reading +0.05 m/s^2 too much while a flow (0.1 m/s noise) says 0.2 m/s
     rng = random.Random(2)
     obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
@@ -519,8 +516,6 @@ def test_speed_observer_learns_the_accelerometer_bias_and_gates_an_outlier():
 
 
 def test_a_measurement_that_shares_the_imus_errors_corrects_the_speed_but_not_the_bias():
-    from inspect_pipe.flight_stack.estimation import SpeedObserver
-
     obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
     for _ in range(200):
         obs.predict(0.0, 0.02)
@@ -530,8 +525,6 @@ def test_a_measurement_that_shares_the_imus_errors_corrects_the_speed_but_not_th
 
 
 def test_the_front_range_re_seats_on_a_jump_instead_of_reading_it_as_motion():
-    from inspect_pipe.flight_stack.estimation import RangeObserver
-
     # GIVEN a front range observer closing at 0.2 m/s on a wall, then a 1.8 m step of the range
     # (the vehicle slid past a pillar's end: a farther surface), with the IMU feeling nothing
     upd = MAVStateUpdater()
