@@ -170,8 +170,10 @@ def _goals(shields: dict) -> dict:
         g[f"ahead_on_{subset}"] = {
             "value": ours_cf, "baselines": others,
             # None: no baseline was flown (``--shields ours``), so "ahead" is not measured
+            # Ahead of each baseline: strictly more collision-free, except at 1.0 (nothing is
+            # ahead of no collision at all). A tie with one baseline is not "ahead of both".
             "met": None if not others else (
-                ours_cf is not None and all(ours_cf >= o for o in others) and (ours_cf > min(others) or ours_cf == 1.0)
+                ours_cf is not None and all(ours_cf > o or ours_cf == 1.0 for o in others)
             ),
         }
     return g

@@ -100,6 +100,11 @@ def test_ahead_of_the_baselines_is_not_judged_without_baselines():
     worse = dict(ours, subsets={"dropout": {"collision_free": 0.9}, "link_loss": {"collision_free": 1.0}})
     g2 = _goals({"ours": worse, "px4_like": ours})
     assert g2["ahead_on_dropout"]["met"] is False and g2["ahead_on_link_loss"]["met"] is True
+    # AND a tie with one baseline below 1.0 is not ahead of both (seed 47: 1 collision each in 396)
+    tie = dict(ours, subsets={"dropout": {"collision_free": 0.99}, "link_loss": {"collision_free": 0.99}})
+    other = dict(ours, subsets={"dropout": {"collision_free": 0.99}, "link_loss": {"collision_free": 0.95}})
+    g3 = _goals({"ours": tie, "px4_like": tie, "ardupilot_like": other})
+    assert g3["ahead_on_dropout"]["met"] is False and g3["ahead_on_link_loss"]["met"] is False
 
 
 def test_an_escape_into_a_pillar_within_the_stop_line_is_not_judged():
