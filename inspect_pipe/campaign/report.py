@@ -59,13 +59,17 @@ def write_report(summary: dict, per_shield: dict[str, list[EpisodeResult]], out:
     subsets = sorted({k for s in shields for k in summary["shields"][s]["subsets"]})
     fig, ax = plt.subplots(figsize=(10, 4))
     w = 0.8 / max(len(shields), 1)
+    lowest = 1.0
     for k, s in enumerate(shields):
         vals = [summary["shields"][s]["subsets"].get(name, {}).get("collision_free", math.nan) for name in subsets]
         ax.bar([i + k * w for i in range(len(subsets))], vals, w, label=s)
+        lowest = min([lowest] + [v for v in vals if v == v])
     ax.set_xticks([i + w * (len(shields) - 1) / 2 for i in range(len(subsets))], subsets, rotation=30, ha="right")
-    ax.set_ylim(min(0.8, ax.get_ylim()[0]), 1.005)
+    # Zoomed to the lowest bar: the shares differ in the second and third decimal, and drawn from
+    # 0 the bars looked equal (the axis starts a hundredth below the lowest).
+    ax.set_ylim(max(0.0, math.floor((lowest - 0.01) * 100.0) / 100.0), 1.002)
     ax.set_ylabel("collision-free share")
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0))  # beside the axes: over the bars it hid them
     fig.tight_layout()
     fig.savefig(out / "collision_free_by_subset.png", dpi=90)
     plt.close(fig)
