@@ -69,8 +69,9 @@ class RangeObserver:
         r = z - self.at(t_meas)
         if self.jump_m is not None and abs(r) > self.jump_m:
             # Taken as motion, the front range's step from 1.0 to 2.8 m (the vehicle slid past a
-            # pillar's end) read as 2 m/s away from it, the bias state hit its limit, and the
-            # speed loop flew the vehicle at 2 m/s into the far wall (campaign seed 12 e80).
+            # pillar's end) read as 2 m/s away from it and the bias state hit its limit (campaign
+            # seed 12 e80; a speed observer that adopted that rate flew the vehicle into the far
+            # wall).
             self.value += r
             return
         self.value += min(self.k1 * ts, 1.0) * r
