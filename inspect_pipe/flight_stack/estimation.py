@@ -26,7 +26,7 @@ from inspect_pipe.flight_stack.messages import (
 )
 from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory, oblique_wall
-from inspect_pipe.flight_stack.params import EstimationParams
+from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
 
 __all__ = ["MAVStateUpdater", "SensorStatus", "select_mode"]
 
@@ -59,9 +59,14 @@ class MAVStateUpdater:
     ``update(now, measurements)`` returns the estimate and the clearances, both valid at ``now``.
     """
 
-    def __init__(self, params: EstimationParams | None = None) -> None:
+    def __init__(self, params: EstimationParams | None = None, behaviors: BehaviorParams | None = None) -> None:
         self.p = params or EstimationParams()
         p = self.p
+        # The sonar beams' half-width and the obliqueness margin, declared once with the
+        # behaviours that also use them.
+        b = behaviors or BehaviorParams()
+        self._beam_half_angle_rad = math.radians(b.covered_half_angle_deg)
+        self._oblique_margin_m_s = b.oblique_margin_m_s
         pole = p.observer_pole_1_s
         k = dict(k1=3.0 * pole, k2=3.0 * pole * pole, k3=pole**3)
         self.height = HeightEstimator(
@@ -477,8 +482,8 @@ class MAVStateUpdater:
         that corner must not outlive it)."""
         if front is None or m.front_sonar is None:
             return
-        h = math.radians(self.p.sonar_beam_half_angle_deg)
-        margin = self.p.oblique_evidence_m_s
+        h = self._beam_half_angle_rad
+        margin = self._oblique_margin_m_s
 
         def oblique(name: str, axis_speed: float) -> bool:
             c = closing.get(name)

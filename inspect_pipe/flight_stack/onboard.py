@@ -43,7 +43,7 @@ class OnboardStack:
     def __init__(self, params: StackParams | None = None) -> None:
         self.params = (params or StackParams()).validate()
         p = self.params
-        self.state_updater = MAVStateUpdater(p.estimation)
+        self.state_updater = MAVStateUpdater(p.estimation, p.behaviors)
         self.behaviors = MAVBehaviors(p.behaviors)
         self.machine = FlightMachine(p.flight_machine)
         self.controller = FlightController(p.control)

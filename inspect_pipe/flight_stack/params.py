@@ -89,18 +89,12 @@ class EstimationParams:
     flow_stuck_imu_dv_m_s: float = param(
         0.15, 0.01, 2.0, "m/s", "... while the IMU-integrated speed changed by this much: the flow sensor is stuck"
     )
-    oblique_evidence_m_s: float = param(
-        0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique surface"
-    )
     oblique_keep_s: float = param(1.0, 0.0, 30.0, "s", "a wall fitted to two oblique sonar readings is kept this long unless renewed")
     sonar_stuck_samples: int = param(
         3, 2, 100, "samples", "horizontal sonar: the same range this many times running, while the vehicle ..."
     )
     sonar_stuck_travel_m: float = param(
         0.1, 0.01, 2.0, "m", "... moved this far along the sonar's axis meanwhile: the sonar is stuck (reads as silent)"
-    )
-    sonar_beam_half_angle_deg: float = param(
-        15.0, 0.0, 40.0, "deg", "horizontal sonars: half-width of the beam (the reading is the nearest echo in it)"
     )
     observer_pole_1_s: float = param(
         1.5, 0.1, 20.0, "1/s", "range observers (height, front range): triple pole of the range / rate / "
@@ -117,7 +111,8 @@ class BehaviorParams:
     repulsion_gain_1_s: float = param(1.6, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s", "prevent_collision backs away at most this fast (Fig. 6 E-F)")
     oblique_margin_m_s: float = param(
-        0.1, 0.0, 1.0, "m/s", "a range closing this much faster than its axis speed: oblique surface"
+        0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique "
+        "surface (prevent_collision, and the estimator's oblique-wall fit)"
     )
     repulsion_deadband_m: float = param(
         0.05, 0.0, 0.3, "m", "inside the safe distance by less than this: hold (0), no repulsion"
@@ -134,7 +129,10 @@ class BehaviorParams:
         0.1, 0.0, 1.0, "m/s", "waiting_for_connectivity: hover until the speed estimate is below this, then hold that point"
     )
     link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
-    covered_half_angle_deg: float = param(15.0, 0.0, 45.0, "deg", "half-width of the sonar beams: motion within it of an axis is seen")
+    covered_half_angle_deg: float = param(
+        15.0, 0.0, 45.0, "deg", "half-width of the horizontal sonars' beams (the reading is the nearest echo in it): "
+        "motion within it of an axis is seen; the estimator's oblique-wall fit uses it too"
+    )
     blind_attenuation_start_m: float = param(
         3.0, 1.0, 6.0, "m", "within this distance of the nearer wall a diagonal push between the beams flies only its "
         "component along the axis nearer its direction"
