@@ -73,8 +73,6 @@ class MAVStateUpdater:
             jump_m=p.height_jump_m, settle_samples=p.height_step_settle_samples, step_min_height_m=p.height_step_min_m, **k
         )
         self.front = RangeObserver(jump_m=p.height_jump_m, **k)
-        self._last_height_stamp = -1.0
-        self._last_front_stamp = -1.0
         self._slopes = {"front": RangeSlope(), "left": RangeSlope(), "right": RangeSlope()}
         #: the speed observers along x, y (heading frame) and z: speed and accelerometer bias
         self.obs = tuple(
@@ -87,8 +85,6 @@ class MAVStateUpdater:
             keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg
         )
         self._yaw: float | None = None  # last heading the autopilot reported
-        self._memory_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
-        self._wall_stamps = {"left": -1.0, "right": -1.0}
         self._stuck = {
             k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")
         }
@@ -100,11 +96,10 @@ class MAVStateUpdater:
         self._was_stuck = {"bottom": False, "front": False}
         self._newly_stuck = {"bottom": False, "front": False}
         self._last_now: float | None = None
-        self._slope_stamps = {"front": -1.0, "left": -1.0, "right": -1.0}
         self._range_rates: dict[str, float | None] = {"front": None, "left": None, "right": None}
         self._v_hist: deque[tuple[float, float, float]] = deque()  # (t, observed vx, vy) over the last slope window
         self._yaw_hist: list[tuple[float, float]] = []  # (t, heading) over the last slope window
-        self._reading_stamps: dict[str, float] = {}  # the stamp of each measurement last used
+        self._reading_stamps: dict[str, float] = {}  # per use of a sensor, the stamp of its reading last used
 
     @property
     def imu_bias(self) -> tuple[float, float, float]:
@@ -173,8 +168,7 @@ class MAVStateUpdater:
         # one, drives the range between samples; otherwise the IMU does.
         self.front.propagate(now, -ax, -bflow.vx_m_s if bflow is not None else None)
         fs = m.front_sonar
-        if fs is not None and fs.range_m is not None and fs.stamp_s != self._last_front_stamp:
-            self._last_front_stamp = fs.stamp_s
+        if fs is not None and fs.range_m is not None and self._new_reading("front_range", fs.stamp_s):
             self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
         # One accelerometer bias along x: the x observer's (learnt from the bottom flow) while there is one;
         # without it the front range observer's own bias state, which the sonar corrects (modes
@@ -239,8 +233,7 @@ class MAVStateUpdater:
             self.height.propagate(now, rate=climb)
         else:
             self.height.propagate(now, az, vz_flow)
-        if source is not None and source.stamp_s != self._last_height_stamp:
-            self._last_height_stamp = source.stamp_s
+        if source is not None and self._new_reading("height", source.stamp_s):
             self.height.update(source.range_m, source.stamp_s - latency)  # type: ignore[arg-type]
 
         # "+val." (Table I): the alarm modes report a climb so that the speed loop descends. Filled
@@ -376,7 +369,8 @@ class MAVStateUpdater:
         oz.predict(az, dt)
 
     def _new_reading(self, name: str, stamp_s: float) -> bool:
-        """Whether ``stamp_s`` is a reading of ``name`` not yet used (a measurement counts once)."""
+        """Whether ``stamp_s`` is a reading not yet used for ``name`` (one use of one sensor: a
+        measurement counts once), and from now on a used one."""
         if self._reading_stamps.get(name) == stamp_s:
             return False
         self._reading_stamps[name] = stamp_s
@@ -421,8 +415,7 @@ class MAVStateUpdater:
         rates: dict[str, float | None] = {}
         for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
             slope = self._slopes[name]
-            if r is not None and r.stamp_s != self._slope_stamps[name]:
-                self._slope_stamps[name] = r.stamp_s
+            if r is not None and self._new_reading(f"{name}_samples", r.stamp_s):
                 valid = r.range_m is not None and r.range_m <= p.sonar_max_range_m
                 slope.add(r.stamp_s, r.range_m if valid else None)
             fresh = r is not None and now - r.stamp_s <= p.sonar_timeout_s
@@ -496,9 +489,8 @@ class MAVStateUpdater:
             if not (front_oblique or oblique(name, sign * est.vy_m_s)):
                 continue
             stamp = max(m.front_sonar.stamp_s, r.stamp_s)
-            if stamp == self._wall_stamps[name]:
+            if not self._new_reading(f"{name}_wall", stamp):
                 continue
-            self._wall_stamps[name] = stamp
             wall = oblique_wall(front, side, h)
             if wall is not None:
                 phi, d = wall
@@ -508,8 +500,7 @@ class MAVStateUpdater:
         """The sector's clearance ``d`` (from its sonar, brought to now), after storing a fresh
         echo in the obstacle memory, lowered to the nearest remembered surface facing it."""
         yaw = self._yaw
-        if d is not None and r is not None and r.stamp_s != self._memory_stamps[name]:
-            self._memory_stamps[name] = r.stamp_s
+        if d is not None and r is not None and self._new_reading(f"{name}_memory", r.stamp_s):
             self.memory.add(r.stamp_s, axis_rad, d, yaw)  # type: ignore[arg-type]
         mem = self.memory.clearance(now, axis_rad, yaw)  # type: ignore[arg-type]
         if mem is None:

@@ -157,7 +157,7 @@ class HeightEstimator:
     """
 
     def __init__(
-        self, *, jump_m: float, k1: float, k2: float, k3: float = 0.0, settle_samples: int = 2, step_min_height_m: float = 0.4
+        self, *, jump_m: float, k1: float, k2: float, k3: float = 0.0, settle_samples: int = 2, step_min_height_m: float = 0.35
     ) -> None:
         self.jump_m = jump_m
         self.step_min_height_m = step_min_height_m
