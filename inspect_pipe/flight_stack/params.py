@@ -41,9 +41,10 @@ class EstimationParams:
         0.15, 0.05, 2.0, "m", "a bottom or front range this far from the observer's prediction is another "
         "surface (a floor step, a pillar's edge), not motion"
     )
-    height_step_min_m: float = param(
-        0.35, 0.0, 2.0, "m", "no floor step is taken below this height (the sonar clamps at 0.30 m, +-0.01 m of "
-        "noise; at 0.4 a box top 0.39 m below was taken for the clamp and the altitude lost 0.5 m)"
+    sonar_clamp_zone_m: float = param(
+        0.35, 0.0, 2.0, "m", "a bottom sonar range below this may be its clamp (it reads 0.30 m when closer, "
+        "+-0.01 m of noise): no floor step is taken, and the PX4Flow's speed, which that range scales, is not "
+        "used (at 0.4 a box top 0.39 m below was taken for the clamp and the altitude lost 0.5 m)"
     )
     height_step_settle_samples: int = param(
         2, 0, 10, "samples", "after a floor step, height samples whose surprise is still the floor's (beam on the edge)"
