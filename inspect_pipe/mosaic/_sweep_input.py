@@ -263,10 +263,14 @@ def _linear_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, m_per_px: flo
 def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.ndarray, m_per_px: float):
     """Odometry = truth + drift(t) with drift(t0) = 0 at the first state sample, on the ground: the
     position estimate starts at the take-off point and its error grows from there, not necessarily
-    linearly (a velocity bias that changes). The drift is piecewise linear on knots every
-    ``DRIFT_KNOT_S`` from ``t0`` along u (the integrated speed; v is the measured altitude, which
-    does not drift: a drift term along v would trade with the scale, since a lawnmower climbs as time
-    goes on), and its second differences are held small (``DRIFT_CURVATURE_SD_M``); the mosaic's
+    linearly (a velocity bias that changes). The drift is piecewise linear along u (the integrated
+    speed; v is the measured altitude, which does not drift: a drift term along v would trade with
+    the scale, since a lawnmower climbs as time goes on) on knots at ``t0``, at lift-off (the last
+    sample on the ground) and every ``DRIFT_KNOT_S`` after it; its second differences are held
+    small (``DRIFT_CURVATURE_SD_M``) except at lift-off, where a velocity error may set in at once
+    (the simulator's take-off, the PX4Flow scaled by its clamped sonar, gave the estimate 2 cm in
+    the second before the first frame was placed; with knots from ``t0`` the drift seen on the
+    ground held it near zero until the first knot after take-off). The mosaic's
     relative layout makes the drift's shape observable, the take-off start and the drift seen while
     still landed (``ground``: (t, u drift) rows, ``_ground_drift``) fix its level. One weighted linear
     least-squares problem in the similarity ``[[a, -b], [b, a]] F`` (its scale held within
@@ -277,12 +281,17 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
     m = M @ _F.T
     t0 = float(ground[0, 0])
     dt = t - t0
-    knots = np.arange(0.0, dt.max() + DRIFT_KNOT_S, DRIFT_KNOT_S)
+    # Knots at t0, at lift-off (the last sample on the ground) and every DRIFT_KNOT_S after it.
+    lift = float(ground[-1, 0] - t0)
+    if lift > 0.0:
+        knots = np.r_[0.0, np.arange(lift, max(float(dt.max()), lift) + DRIFT_KNOT_S, DRIFT_KNOT_S)]
+    else:
+        knots = np.arange(0.0, dt.max() + DRIFT_KNOT_S, DRIFT_KNOT_S)
 
     def hat(x: np.ndarray) -> np.ndarray:  # drift at times x (from t0) from the knot values, drift(t0) = 0
         D = np.zeros((len(x), len(knots)))
         j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
-        fr = np.clip((x - knots[j]) / DRIFT_KNOT_S, 0.0, 1.0)
+        fr = np.clip((x - knots[j]) / np.diff(knots)[j], 0.0, 1.0)
         D[np.arange(len(x)), j] = 1 - fr
         D[np.arange(len(x)), j + 1] = fr
         return D[:, 1:]
@@ -297,6 +306,8 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
     npar = A.shape[1]
     curv = []
     for q in range(len(knots) - 2):  # second differences of the knot values, drift(knot 0) = 0
+        if lift > 0.0 and q == 0:
+            continue  # the drift's slope may change at lift-off: no prior there
         row = np.zeros(npar)
         for jj, cf in ((q, 1.0), (q + 1, -2.0), (q + 2, 1.0)):
             if jj >= 1:
