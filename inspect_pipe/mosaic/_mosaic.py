@@ -15,7 +15,7 @@ from ._blas import with_one_blas_thread
 from ._blend import BlendParams, CanvasTooLarge, render
 from inspect_pipe._files import write_json, write_png
 from ._register import FrameSource, Registration, RegisterParams, register
-from ._sweep_input import SweepSource, control_point_geometry, wall_geometry
+from ._sweep_input import SweepSource, control_point_geometry, take_off_frames, wall_geometry
 
 FORMAT = "inspect_pipe.mosaic/1"
 
@@ -223,7 +223,8 @@ def run_mosaic_sweep(
         extra["input"]["skipped"] = [str(p) for p in sweep.problems]
     result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)
     main = {f: h for f, h in result.H.items() if result.group_of[f] == 0}
-    geom = wall_geometry(sweep, main, source.focal_px, source.principal_px) if main else None
+    take_off = take_off_frames(source, main) if main else {}  # for the wall map's fit only, not blended
+    geom = wall_geometry(sweep, main, source.focal_px, source.principal_px, take_off=take_off) if main else None
     geom = (control_point_geometry(sweep, main, geom) if main else None) or geom
     if geom is not None:
         import json

@@ -16,7 +16,9 @@ each exposure. From those:
   mosaic fixes the shape and odometry places it. When the sweep starts on the ground (its first
   state sample says landed), the position estimate starts at the take-off point: its drift is then
   a smooth curve from zero at that sample (``_smooth_drift_fit``), fitted jointly with the
-  similarity, whose scale is held near the camera's (``m_per_px`` below) within 0.5 %. Without
+  similarity, whose scale is held near the camera's (``m_per_px`` below) within 0.5 %; the frames
+  taken while taking off, registered to the mosaic for this fit only (``take_off_frames``), tell
+  the drift along the wall between lift-off and the first placed frame. Without
   that start the drift is a straight line with a free offset and the scale is the camera's
   (``_linear_drift_fit``). The residual is reported.
 """
@@ -93,6 +95,78 @@ class SweepSource:
         return float(self.K[0, 2]), float(self.K[1, 2])
 
 
+
+#: How far along the wall a take-off frame's registration may move it from where odometry puts
+#: it (the odometry gained up to 3 cm over the take-off second on 16 simulated flights; a false
+#: match on the plain lower wall moved a frame 51 cm).
+TAKE_OFF_TOLERANCE_M = 0.10
+#: Two registrations of a take-off frame (to two of the next frames) must place its centre within
+#: this of each other: a false match on the plain lower wall rarely agrees with another.
+TAKE_OFF_AGREE_M = 0.01
+
+
+def take_off_frames(source: SweepSource, H: dict[int, np.ndarray], *, links: int = 3) -> dict[int, np.ndarray]:
+    """Frames taken while taking off, before the first placed frame, registered to the mosaic
+    for the wall map's fit only (frame px -> mosaic px): newest first, each to the best of the
+    ``links`` next frames already placed or registered; the chain stops at the first frame that
+    registers to none (the camera sinks below the wall's texture) or that moves along the wall
+    more than ``TAKE_OFF_TOLERANCE_M`` from where odometry puts it (the altitude is not checked:
+    the sonar is clamped or lags in the climb), or whose two best registrations place it more than
+    ``TAKE_OFF_AGREE_M`` apart. They are what tells the drift between lift-off and the first
+    placed frame."""
+    from ._features import detect_features, to_gray
+    from ._homography import match_pair
+
+    frames = source.sweep.frames
+    if not H or source._m_per_px is None:
+        return {}
+    t_first = min(frames[i].t_s for i in H)
+    later = sorted(H, key=lambda i: frames[i].t_s)[:links]
+    todo = sorted((i for i, f in enumerate(frames) if f.fsm == "taking_off" and f.t_s < t_first), key=lambda i: -frames[i].t_s)
+    feats: dict[int, object] = {}
+
+    def features(i: int):
+        if i not in feats:
+            try:
+                feats[i] = detect_features(to_gray(source.load(i)))
+            except FrameError:
+                feats[i] = None
+        return feats[i]
+
+    placed = dict(H)
+    out: dict[int, np.ndarray] = {}
+    tol_px = TAKE_OFF_TOLERANCE_M / source._m_per_px
+    agree_px = TAKE_OFF_AGREE_M / source._m_per_px
+    img_wh = (source.sweep.meta.width, source.sweep.meta.height)
+    c = np.array([img_wh[0] / 2, img_wh[1] / 2, 1.0])
+    for k in todo:
+        fk = features(k)
+        ck = source.centre_px(k)
+        found = []  # (inliers, placement) of each link that registers and agrees with odometry along the wall
+        for j in later:
+            fj = features(j)
+            if fk is None or fj is None:
+                continue
+            m = match_pair(k, j, fk, fj, img_wh)
+            if not m:
+                continue
+            cj = source.centre_px(j)
+            if ck is not None and cj is not None:
+                p = np.linalg.inv(m.H) @ c  # frame j's centre in frame k's pixels
+                if abs((p[0] / p[2] - c[0]) - (cj[0] - ck[0])) > tol_px:
+                    continue
+            found.append((m.n_inliers, placed[j] @ m.H))
+        found.sort(key=lambda x: -x[0])
+        if len(found) < 2:
+            break
+        (_, h1), (_, h2) = found[:2]
+        p1, p2 = h1 @ c, h2 @ c
+        if np.linalg.norm(p1[:2] / p1[2] - p2[:2] / p2[2]) > agree_px:
+            break
+        placed[k] = out[k] = h1
+        later = [k] + later[: links - 1]
+    return out
+
 @dataclass(frozen=True)
 class WallGeometry:
     m_per_px: float
@@ -106,6 +180,7 @@ class WallGeometry:
     wall_note: str | None = None  # a hold dimension the wall frame lacked
     method: str = ("scale from focal length and wall distance; rotation, offset and the odometry's linear drift fitted "
                    "(Huber) between frame centres in the mosaic and the vehicle's position estimates")
+    take_off_frames: tuple[int, ...] = ()  # frames taken while taking off that the fit used (along the wall only)
 
     def to_json(self) -> dict:
         return {
@@ -120,6 +195,7 @@ class WallGeometry:
                 "max_m": round(self.max_m, 4),
                 "free_scale_m_per_px": self.free_scale_m_per_px,
                 "n_frames": self.n_frames,
+                "take_off_frames": list(self.take_off_frames),
             },
         }
 
@@ -174,40 +250,50 @@ def _ground_drift(sweep, to_wall_u) -> np.ndarray | None:
     return g
 
 
-def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px: tuple[float, float]) -> WallGeometry | None:
+def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px: tuple[float, float],
+                  take_off: dict[int, np.ndarray] | None = None) -> WallGeometry | None:
     """Mosaic -> wall map for the placed frames ``H`` (frame px -> mosaic px), or None when the
-    sweep carries no position or wall distance estimates."""
+    sweep carries no position or wall distance estimates. ``take_off``: frames taken while taking
+    off, registered to the mosaic for the fit only (``take_off_frames``); they tell the drift along
+    the wall between lift-off and the first placed frame, not the altitude."""
     meta = sweep.meta
     cam_t = np.asarray(meta.cam_to_body.t, float)
     frame = meta.wall_frame()  # the surveyed wall (survey plan, or the simulated wall faced)
     a = frame.facing_heading_rad  # the vehicle faces the wall: the camera's offset turned with it
     cam_offset = np.array([cam_t[0] * np.cos(a) - cam_t[1] * np.sin(a), cam_t[0] * np.sin(a) + cam_t[1] * np.cos(a), cam_t[2]])
     K = np.array([[focal_px, 0.0, principal_px[0]], [0.0, focal_px, principal_px[1]], [0.0, 0.0, 1.0]])
-    mos, wall, dists, times = [], [], [], []
     c = np.array([principal_px[0], principal_px[1], 1.0])
-    for i, h in H.items():
-        f = sweep.frames[i]
-        if f.dist_front_m is not None:
-            dists.append(f.dist_front_m - cam_t[0])
-        if f.position_m is None:
-            continue
-        foot = _foot_px(h, K)
-        p = h @ (c if foot is None else foot)
-        mos.append(p[:2] / p[2])
-        wall.append(frame.to_wall(meta.to_hold(f.position_m)[0] + cam_offset)[0])
-        times.append(f.t_s)
-    if not dists or len(mos) < 3:
+
+    def pairs(frames: dict[int, np.ndarray]):
+        mos, wall, times = [], [], []
+        for i, h in frames.items():
+            f = sweep.frames[i]
+            if f.position_m is None:
+                continue
+            foot = _foot_px(h, K)
+            p = h @ (c if foot is None else foot)
+            mos.append(p[:2] / p[2])
+            wall.append(frame.to_wall(meta.to_hold(f.position_m)[0] + cam_offset)[0])
+            times.append(f.t_s)
+        return np.array(mos).reshape(-1, 2), np.array(wall).reshape(-1, 2), np.array(times, float)
+
+    dists = [sweep.frames[i].dist_front_m - cam_t[0] for i in H if sweep.frames[i].dist_front_m is not None]
+    M, W, t = pairs(H)
+    if not dists or len(M) < 3:
         return None
     m_per_px = float(np.mean(dists) / focal_px)
-    M, W, t = np.array(mos), np.array(wall), np.array(times, float)
     ground = _ground_drift(sweep, lambda p: float(frame.to_wall(meta.to_hold(p)[0] + cam_offset)[0, 0]))
+    used: tuple[int, ...] = ()
     if ground is not None and ground[0, 0] <= t.min():
-        L, tr, drift, r, free = _smooth_drift_fit(M, W, t, ground, m_per_px)
+        Ma, Wa, ta = pairs(take_off or {})
+        used = tuple(sorted(i for i in (take_off or {}) if sweep.frames[i].position_m is not None))
+        L, tr, drift, r, free = _smooth_drift_fit(M, W, t, ground, m_per_px, along=(Ma, Wa[:, 0], ta))
         scale = float(np.sqrt(abs(np.linalg.det(L))))
         method = ("similarity fitted (Huber) between the wall points straight ahead of the cameras in the mosaic and the "
                   "vehicle's position estimates, with the odometry's drift along the wall a smooth curve from zero at take-off "
-                  "(the drift seen while landed included) and the altitude as measured; scale within 0.5 % of focal length "
-                  "and wall distance")
+                  "(the drift seen while landed included; its slope free at lift-off) and the altitude as measured; frames "
+                  "taken while taking off registered for the fit along the wall; scale within 0.5 % of focal length and "
+                  "wall distance")
     else:
         L, tr, drift, r, free = _linear_drift_fit(M, W, t, m_per_px)
         scale = m_per_px
@@ -215,7 +301,7 @@ def wall_geometry(sweep, H: dict[int, np.ndarray], focal_px: float, principal_px
     T = np.eye(3)
     T[:2, :2], T[:2, 2] = L, tr
     return WallGeometry(scale, T, float(np.sqrt(np.mean(r**2))), float(r.max()), free, len(M), tuple(float(d) for d in drift),
-                        frame.wall.value, meta.wall_frame_note(), method)
+                        frame.wall.value, meta.wall_frame_note(), method, used)
 
 
 _F = np.diag([1.0, -1.0])  # mosaic rows run down, wall v runs up
@@ -260,7 +346,8 @@ def _linear_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, m_per_px: flo
     return L, tr, drift, r, free
 
 
-def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.ndarray, m_per_px: float):
+def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.ndarray, m_per_px: float,
+                      along: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
     """Odometry = truth + drift(t) with drift(t0) = 0 at the first state sample, on the ground: the
     position estimate starts at the take-off point and its error grows from there, not necessarily
     linearly (a velocity bias that changes). The drift is piecewise linear along u (the integrated
@@ -275,8 +362,10 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
     still landed (``ground``: (t, u drift) rows, ``_ground_drift``) fix its level. One weighted linear
     least-squares problem in the similarity ``[[a, -b], [b, a]] F`` (its scale held within
     ``SCALE_SD`` of ``m_per_px`` along the direction a first Procrustes fit finds), its offset and
-    the drift; Huber weights. -> (L, t, mean drift rate (u, 0) m/s, residuals, the scale a fit
-    without the scale prior chooses)."""
+    the drift; Huber weights. ``along``: (mosaic px (N, 2), wall u (N,), t (N,)) of frames that
+    tell u only (registered while taking off: their altitude is the clamped or lagging sonar's).
+    -> (L, t, mean drift rate (u, 0) m/s, residuals of ``M``'s frames, the scale a fit without the
+    scale prior chooses)."""
     n = len(M)
     m = M @ _F.T
     t0 = float(ground[0, 0])
@@ -296,13 +385,23 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
         D[np.arange(len(x)), j + 1] = fr
         return D[:, 1:]
 
-    Du = hat(dt)
-    k = Du.shape[1]
-    z = np.zeros((n, 1))
-    Au = np.c_[m[:, :1], -m[:, 1:], np.ones((n, 1)), z, Du]
-    Av = np.c_[m[:, 1:], m[:, :1], z, np.ones((n, 1)), np.zeros((n, k))]
-    A = np.r_[Au, Av] / ODOMETRY_SD_M
-    y = np.r_[W[:, 0], W[:, 1]] / ODOMETRY_SD_M
+    if along is not None and len(along[0]):
+        ma = np.asarray(along[0], float) @ _F.T
+        ua, ta = np.asarray(along[1], float), np.asarray(along[2], float) - t0
+    else:
+        ma, ua, ta = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    na = len(ma)
+    k = len(knots) - 1
+
+    def u_rows(mm: np.ndarray, tt: np.ndarray) -> np.ndarray:
+        nn = len(mm)
+        return np.c_[mm[:, :1], -mm[:, 1:], np.ones((nn, 1)), np.zeros((nn, 1)), hat(tt)]
+
+    Au = u_rows(m, dt)
+    Av = np.c_[m[:, 1:], m[:, :1], np.zeros((n, 1)), np.ones((n, 1)), np.zeros((n, k))]
+    Aa = u_rows(ma, ta).reshape(na, 4 + k)
+    A = np.r_[Au, Av, Aa] / ODOMETRY_SD_M
+    y = np.r_[W[:, 0], W[:, 1], ua] / ODOMETRY_SD_M
     npar = A.shape[1]
     curv = []
     for q in range(len(knots) - 2):  # second differences of the knot values, drift(knot 0) = 0
@@ -325,17 +424,18 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
     prior[0, :2] = np.array([c0, s0]) / (SCALE_SD * m_per_px)
 
     def solve(w: np.ndarray, with_prior: bool) -> np.ndarray:
-        sw = np.sqrt(np.r_[w, w])[:, None]
+        sw = np.sqrt(np.r_[w[:n], w[:n], w[n:]])[:, None]
         P = np.r_[curv, prior] if with_prior else curv
         q = np.r_[curv_q, [1.0 / SCALE_SD]] if with_prior else curv_q
         x, *_ = np.linalg.lstsq(np.r_[A * sw, P], np.r_[y * sw[:, 0], q], rcond=None)
         return x
 
-    w = np.ones(n)
+    w = np.ones(n + na)
     for _ in range(20):
         x = solve(w, True)
         r = np.hypot(Au @ x - W[:, 0], Av @ x - W[:, 1])
-        w = np.where(r <= HUBER_M, 1.0, HUBER_M / np.maximum(r, 1e-12))
+        ra = np.abs(Aa @ x - ua)
+        w = np.where(np.r_[r, ra] <= HUBER_M, 1.0, HUBER_M / np.maximum(np.r_[r, ra], 1e-12))
     xf = solve(w, False)
     a, b, tu, tv = x[:4]
     L = np.array([[a, -b], [b, a]]) @ _F

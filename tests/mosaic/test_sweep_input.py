@@ -145,3 +145,40 @@ def test_sweep_without_frames_is_one_line_exit_2(tmp_path):
     assert res.exit_code == 2
     assert "frames.jsonl" in res.output and "no readable frames" in res.output
     assert "Traceback" not in res.output
+
+
+def test_frames_taken_while_taking_off_are_registered_for_the_wall_map_only(tmp_path):
+    # GIVEN a sweep that starts on the ground: 3 frames landed, 6 taking off (climbing 4 cm a frame; the oldest
+    # two see a plain wall, as a camera near the floor sees the paint below a hold's texture), then the 3-pass
+    # survey
+    rng = np.random.default_rng(7)
+    truth = _write_sweep(tmp_path / "sweep", rng)
+    p = tmp_path / "sweep" / "frames.jsonl"
+    survey = [json.loads(x) for x in p.read_text().splitlines()]
+    wall = textured_wall(900, 700, np.random.default_rng(7))
+    pre = []
+    u_c, d = 3.35, 0.8
+    for k in range(9):
+        v_c = 2.55 - 0.04 * max(0, 8 - k) if k >= 3 else 2.55 - 0.04 * 6
+        fsm = "landed" if k < 3 else "taking_off"
+        img = render_frame(wall, _frame_to_texture(u_c, v_c, d), (W, H))
+        if k < 5:
+            img[:] = 128  # plain paint: nothing to register
+        name = f"images/pre{k:03d}.png"
+        cv2.imwrite(str(tmp_path / "sweep" / name), img)
+        pos = [HOLD_L - d - CAM_T[0], HOLD_W / 2 - u_c, 2.31 if k < 3 else min(v_c, 2.40)]
+        pre.append({"index": k, "image": name, "t_s": 0.1 * k, "exposure_s": 0.004,
+                    "state": {"t_s": 0.1 * k, "position_m": pos, "dist_front_m": d + CAM_T[0], "height_m": pos[2],
+                              "velocity_m_s": [0, 0, 0], "est_mode": 0, "fsm": fsm, "inspection_mode": False}})
+    for i, x in enumerate(survey):
+        x["index"] = 9 + i
+        x["t_s"] = x["state"]["t_s"] = 0.9 + 0.1 * i
+    p.write_text("\n".join(json.dumps(x) for x in pre + survey) + "\n")
+    # WHEN it is mosaicked
+    run_mosaic_sweep(tmp_path / "sweep", tmp_path / "out")
+    doc = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    # THEN the textured take-off frames (5-8) are registered for the wall map's fit, back to the first plain one; they
+    # are not blended into the mosaic, nor are the landed ones
+    assert doc["wall_fit"]["take_off_frames"] == [5, 6, 7, 8]
+    assert sorted(f["index"] for f in doc["frames"]) == list(range(9, 9 + len(truth)))
+    assert "from zero at take-off" in doc["wall_fit"]["method"]
