@@ -5,6 +5,8 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -121,6 +123,11 @@ def _region(params: ReportParams, survey_raw: dict, sweep, views, wall: WallMap,
     return (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()), float(pts[:, 1].max()))
 
 
+def _frame_sharpness(path: Path) -> float | None:
+    g = cv2.imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
+    return None if g is None else sharpness(cv2.resize(g, (g.shape[1] * 2, g.shape[0] * 2)))
+
+
 def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Report:
     """Everything the report shows, computed in memory (no file written)."""
     doc, where = inp.mosaic_doc, inp.mosaic_where
@@ -145,16 +152,16 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         defects = [replace(d, severity=entry_severity(d, inp.severity)) if d.cls == "corrosion" else d for d in defects]
     precision = Precision.of(wall.m_per_px, wall.fit_rms_m)
 
-    # sharpness of every placed frame, for coverage
+    # sharpness of every placed frame, for coverage (decoding the frames is most of the step's
+    # time: on every core, OpenCV releases the GIL)
     sharp: dict[int, float] = {}
     if sweep is not None:
         for v in views:  # mosaic.json indices are positions in the sweep's frame list
             if not 0 <= v.index < len(sweep.frames):
                 raise InputError(where, f"frame index {v.index} is not in the sweep ({len(sweep.frames)} frames)")
-            rec = sweep.frames[v.index]
-            g = cv2.imread(str(rec.image_path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
-            if g is not None:
-                sharp[v.index] = sharpness(cv2.resize(g, (g.shape[1] * 2, g.shape[0] * 2)))
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            found = pool.map(_frame_sharpness, [sweep.frames[v.index].image_path for v in views])
+            sharp = {v.index: s for v, s in zip(views, found) if s is not None}
     grid = WallGrid.around(*region, params.coverage.cell_m)
     coverage = compute_coverage(views, wall, grid, sharp, params=params.coverage)
 
