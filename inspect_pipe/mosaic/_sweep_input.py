@@ -95,7 +95,6 @@ class SweepSource:
         return float(self.K[0, 2]), float(self.K[1, 2])
 
 
-
 #: How far along the wall a take-off frame's registration may move it from where odometry puts
 #: it (the odometry gained up to 3 cm over the take-off second on 16 simulated flights; a false
 #: match on the plain lower wall moved a frame 51 cm).
@@ -166,6 +165,7 @@ def take_off_frames(source: SweepSource, H: dict[int, np.ndarray], *, links: int
         placed[k] = out[k] = h1
         later = [k] + later[: links - 1]
     return out
+
 
 @dataclass(frozen=True)
 class WallGeometry:
