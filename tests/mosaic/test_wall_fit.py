@@ -67,7 +67,7 @@ def _sweep(fsm0: str = "landed", seed: int = 1, drift_m=_accelerating, take_off:
             Hs[i] = np.linalg.inv(A) @ np.linalg.inv(Hwf)
         elif not landed and take_off is not None:
             take_off[i] = np.linalg.inv(A) @ np.linalg.inv(Hwf)
-            v = max(v, 0.3) if v >= 0.6 else 0.3  # the altitude estimate: a clamped sonar
+            v = v if v >= 0.6 else 0.3  # the altitude estimate: a clamped sonar below 0.6 m
         drift = drift_m(t)
         est = wall.to_hold([u + drift + rng.normal(0, 0.002), v + rng.normal(0, 0.005)])[0] + D * wall.normal
         frames.append(SimpleNamespace(index=i, t_s=float(t), position_m=tuple(est), dist_front_m=D + rng.normal(0, 0.005),
