@@ -117,8 +117,9 @@ def take_off_frames(source: SweepSource, H: dict[int, np.ndarray], *, links: int
     from ._homography import match_pair
 
     frames = source.sweep.frames
-    if not H or source._m_per_px is None:
-        return {}
+    first = next((f for f in frames if f.position_m is not None), None)
+    if not H or source._m_per_px is None or first is None or first.fsm != "landed":
+        return {}  # only the fit from the take-off point (``_smooth_drift_fit``) uses them
     t_first = min(frames[i].t_s for i in H)
     later = sorted(H, key=lambda i: frames[i].t_s)[:links]
     todo = sorted((i for i, f in enumerate(frames) if f.fsm == "taking_off" and f.t_s < t_first), key=lambda i: -frames[i].t_s)
