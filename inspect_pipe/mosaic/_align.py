@@ -52,6 +52,13 @@ class AlignParams:
     ftol: float = 1e-4  # relative cost change that ends the adjustment
     self_calibration_ftol: float = 1e-6  # with the focal length free the valley is flat: follow it further
     self_calibration_max_nfev: int = 60
+    # A self-calibrated fit is given up once it is both far off, over stall_ratio x the acceptance limit (see
+    # pose_ratio), and stalled, less than stall_progress better than stall_nfev evaluations before. Planar sweeps are
+    # within 2.2x after 5 evaluations even from a focal length 3x off, and still moving; the non-planar NPU drone scene
+    # sat at 10-33x, 0.02 % better after 5 evaluations, 0.9 % after 60: 7-10 s of CPU each for nothing.
+    stall_nfev: int = 5
+    stall_ratio: float = 4.0
+    stall_progress: float = 0.01
     outlier_px: float = 3.0  # correspondences further off after alignment count as outliers in rms_px
     pose_model: bool = True  # try the pose model (falls back to free homographies where it fails)
     pose_min_frames: int = 5
@@ -275,8 +282,9 @@ def _preconditioner(J: sp.csr_matrix, r: np.ndarray, f_scale: float):
     return M, MT
 
 
-def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams) -> tuple[np.ndarray, Camera, int, bool]:
-    """Robust sparse least squares from ``full0``; returns (frame parameters, camera, evaluations, converged)."""
+def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams, give_up_px: float | None = None) -> tuple[np.ndarray, Camera, int, bool]:
+    """Robust sparse least squares from ``full0``; returns (frame parameters, camera, evaluations, usable).
+    With ``give_up_px``, the adjustment stops early once it is stalled above that RMS (:func:`_stalled`)."""
     cache: dict = {}
 
     def fun(x):
@@ -299,17 +307,37 @@ def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams) -> tuple[np.n
     x0 = full0[prob.free]
     total, status = 0, 0
     while True:
-        sol, M = _solve_from(fun, jac, x0, params, min(params.restart_nfev, params.max_nfev - total))
+        sol, M = _solve_from(fun, jac, x0, params, min(params.restart_nfev, params.max_nfev - total),
+                             None if give_up_px is None else _stalled(give_up_px, params, total))
         x0 = x0 + M(sol.x)
         total += int(sol.nfev)
         status = int(sol.status)
         if status != 0 or total >= params.max_nfev or not np.all(np.isfinite(x0)):
             break
     P, cam = prob.unpack(x0, full0)
-    return P, cam, total, bool(status >= 0 and np.all(np.isfinite(x0)))  # 0: max_nfev reached, still usable
+    # 0: max_nfev reached, -2: given up as stalled; both usable, to be judged by their fit
+    return P, cam, total, (status >= 0 or status == -2) and bool(np.all(np.isfinite(x0)))
 
 
-def _solve_from(fun, jac, x0: np.ndarray, params: AlignParams, max_nfev: int):
+def _stalled(give_up_px: float, params: AlignParams, nfev0: int = 0):
+    """A least_squares callback that stops the adjustment once its RMS transfer error (the larger of a
+    correspondence's two) is over ``give_up_px`` and less than ``stall_progress`` better than
+    ``stall_nfev`` evaluations before: a fit that far off and that slow will not be accepted."""
+    history: list[tuple[int, float]] = []
+
+    def callback(intermediate_result) -> None:  # the name scipy looks for to pass the whole result
+        r = np.asarray(intermediate_result.fun).reshape(-1, 4)
+        rms = float(np.sqrt(np.mean(np.maximum(r[:, 0] ** 2 + r[:, 1] ** 2, r[:, 2] ** 2 + r[:, 3] ** 2))))
+        nfev = nfev0 + int(intermediate_result.nfev)
+        history.append((nfev, rms))
+        before = [e for n, e in history if n <= nfev - params.stall_nfev]
+        if before and rms > give_up_px and rms > (1.0 - params.stall_progress) * before[-1]:
+            raise StopIteration  # least_squares ends with status -2 (trf ignores a returned True)
+
+    return callback
+
+
+def _solve_from(fun, jac, x0: np.ndarray, params: AlignParams, max_nfev: int, callback=None):
     """One trust-region run from ``x0`` in variables preconditioned there; returns (solution, M)."""
     from scipy.sparse.linalg import LinearOperator
 
@@ -330,7 +358,7 @@ def _solve_from(fun, jac, x0: np.ndarray, params: AlignParams, max_nfev: int):
     # 40-frame sweep), bounded: preconditioned, a step takes tens of iterations (synth_rust_sweep).
     # The trust region is in the preconditioned variables, which already carry the Jacobian's scale.
     sol = least_squares(fun_z, np.zeros(len(x0)), jac=jac_z, method="trf", loss=params.loss, f_scale=params.loss_scale_px,
-                        max_nfev=max_nfev, tr_solver="lsmr",
+                        max_nfev=max_nfev, tr_solver="lsmr", callback=callback,
                         tr_options={"atol": 1e-10, "btol": 1e-10, "maxiter": 200, "regularize": False}, ftol=params.ftol, xtol=1e-10, gtol=1e-10)
     return sol, M
 
@@ -392,9 +420,10 @@ def homographies_from_poses(model_maps: np.ndarray, K: np.ndarray) -> list[np.nd
 
 def adjust_poses(
     H0: dict[int, np.ndarray], corr: Correspondences, cam0: Camera, *, free_focal: bool, free_distortion: bool,
-    params: AlignParams = AlignParams(),
+    params: AlignParams = AlignParams(), give_up_px: float | None = None,
 ) -> tuple[dict[int, np.ndarray], Camera, int, bool]:
-    """Pose-model bundle adjustment from homographies ``H0`` (frame px -> a metric wall frame)."""
+    """Pose-model bundle adjustment from homographies ``H0`` (frame px -> a metric wall frame);
+    ``give_up_px``: stop early once stalled above that RMS (:func:`_stalled`)."""
     frames = sorted(H0)
     corr = corr.within(frames)
     ii, jj = _rows(frames, corr)
@@ -407,7 +436,7 @@ def adjust_poses(
     free = np.ones(full0.size, dtype=bool)
     free[[ref * 6 + 2, ref * 6 + 3, ref * 6 + 4, ref * 6 + 5]] = False  # in-plane rotation and translation
     prob = _Problem("pose", frames, ii, jj, corr, R0, cam0, intrinsics, free)
-    P, cam, nfev, ok = _solve(prob, full0, params)
+    P, cam, nfev, ok = _solve(prob, full0, params, give_up_px)
     A = wall_to_image("pose", P, R0)
     H = dict(zip(frames, homographies_from_poses(A, cam.K)))
     return H, cam, nfev, ok
@@ -609,10 +638,11 @@ def _start(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int,
 
 def fit_pose_model(
     H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], f0: float, principal: tuple[float, float],
-    *, self_calibrate: bool, params: AlignParams,
+    *, self_calibrate: bool, params: AlignParams, give_up_px: float | None = None,
 ) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool]:
     """Rectify the layout with ``f0``, then bundle-adjust the pose model on a thinned set of
-    correspondences; returns (H, camera, errors of all correspondences, converged)."""
+    correspondences; returns (H, camera, errors of all correspondences, converged). A self-calibrated
+    fit stalled above ``give_up_px`` stops there (:func:`_stalled`)."""
     from ._rectify import rectify
 
     # self-calibration keeps the chained start: its perspective is what finds the focal length (from the similarity
@@ -624,7 +654,8 @@ def fit_pose_model(
     else:
         params = replace(params, max_nfev=params.pose_max_nfev)
     H, cam, _, ok = adjust_poses(H_wall, thin(corr, params.pose_points_per_pair), Camera(f0, *principal),
-                                 free_focal=self_calibrate, free_distortion=self_calibrate and params.distortion, params=params)
+                                 free_focal=self_calibrate, free_distortion=self_calibrate and params.distortion, params=params,
+                                 give_up_px=give_up_px if self_calibrate else None)
     return H, cam, pose_errors(H, cam, corr), ok
 
 
@@ -681,7 +712,8 @@ def align_group(
         tries.append((None, True))
         for f0, self_cal in tries:
             f0 = f0 or initial_focal(H0, size_wh, principal, pair_H, params)
-            H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params)
+            H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params,
+                                             give_up_px=params.stall_ratio * limit)
             rms = _rms(err, params.outlier_px)
             rms_all = float(np.sqrt(np.mean(err**2))) if len(err) else 0.0  # judged on all: a fit may leave whole pairs off
             if not ok:

@@ -90,3 +90,31 @@ def test_a_focal_length_that_contradicts_the_images_is_reported(synthetic_sweep,
     assert abs(doc["groups"][0]["camera"]["focal_px"] / path.focal_px - 1) < 0.15
     ce = corner_error({f["index"]: np.array(f["H"]) for f in doc["frames"]}, H_gt, path.frame_wh)
     assert ce.max_px < 2.0
+
+
+def test_a_self_calibrated_fit_is_given_up_only_when_far_off_and_stalled():
+    # GIVEN the stall rule (5 evaluations, 4x the acceptance limit, 1 % progress) with a limit of 1 px
+    from types import SimpleNamespace
+
+    from inspect_pipe.mosaic._align import _stalled
+
+    params = AlignParams()
+    assert (params.stall_nfev, params.stall_ratio, params.stall_progress) == (5, 4.0, 0.01)
+
+    def run(rms_by_nfev, give_up_px=4.0):
+        cb = _stalled(give_up_px, params)
+        for nfev, rms in rms_by_nfev:
+            # residuals (i->j x, y, j->i x, y) whose larger transfer error is ``rms`` for every correspondence
+            fun = np.tile([rms, 0.0, 0.0, 0.5 * rms], 10)
+            try:
+                cb(SimpleNamespace(fun=fun, nfev=nfev))
+            except StopIteration:
+                return nfev
+        return None
+
+    # THEN a fit sitting at 46 px (the NPU drone scene) stops once 5 evaluations show no progress
+    assert run([(n, 46.6 - 0.001 * n) for n in range(1, 30)]) == 6
+    # AND a far-off fit that is still moving (a focal length 3x off, a long sweep's chained start) goes on
+    assert run([(n, 60.0 * 0.8 ** n) for n in range(1, 30)]) is None
+    # AND a stalled fit within 4x of the limit goes on to be judged by its fit
+    assert run([(n, 3.9) for n in range(1, 30)]) is None
