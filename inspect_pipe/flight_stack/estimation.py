@@ -82,7 +82,8 @@ class MAVStateUpdater:
         self._obs_yaw: float | None = None  # the heading the observers' speeds are expressed in
         self._alarm_since: float | None = None  # when the current alarm mode began
         self.memory = ObstacleMemory(
-            keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg
+            keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg,
+            jump_m=p.height_jump_m, beam_half_rad=self._beam_half_angle_rad, body_radius_m=p.body_radius_m,
         )
         self._yaw: float | None = None  # last heading the autopilot reported
         self._stuck = {
@@ -191,7 +192,7 @@ class MAVStateUpdater:
         # last speed on with the IMU instead, so the loop brakes, and the horizontal sonars' range
         # rates correct them where they hear a wall (``_range_rate_speeds``).
         ox, oy, oz = self.obs
-        noise = p.flow_noise_m_s
+        noise = p.speed_noise_m_s
         if bflow is not None:
             # The PX4Flow scales its angular flow by its own sonar's range; below the sonar's
             # clamp (0.30 m) that range is too long and the speed too high by the ratio (3x at
@@ -405,7 +406,7 @@ class MAVStateUpdater:
         p = self.p
         if self._turning(now):
             return
-        noise = p.range_rate_noise_m_s
+        noise = p.speed_noise_m_s
         for axis, sensors in ((0, (("front", -1.0),)), (1, (("left", -1.0), ("right", 1.0)))):
             obs, found = self.obs[axis], []
             for name, sign in sensors:
@@ -414,7 +415,7 @@ class MAVStateUpdater:
                     continue
                 then = self._speed_at(t_mid - p.sonar_latency_s)
                 found.append((sign * rate, None if then is None else then[axis]))
-            # One slope's own noise is half of range_rate_noise_m_s (doubled there for the overlap
+            # One slope's own noise is half of speed_noise_m_s (doubled there for the overlap
             # of consecutive slopes); the difference of two sensors' has sqrt(2) times that.
             if len(found) == 2 and abs(found[0][0] - found[1][0]) > p.observer_gate_sigma * noise / math.sqrt(2.0):
                 continue

@@ -10,7 +10,13 @@ Frame: heading from the autopilot's attitude estimate (gyro-integrated; only cha
 over a few seconds matter, so a slow drift does no harm), position integrated from the speed
 estimate. Each fresh echo becomes a plane facing the sensor's axis at the echo's range; planes
 are binned by the direction of their normal (10 deg bins, the newest echo of a bin wins) and
-forgotten after ``keep_s`` or ``keep_travel_m`` of travel (odometry drift). The clearance along a
+forgotten after ``keep_s`` or ``keep_travel_m`` of travel (odometry drift). A heard surface is not
+replaced by a farther echo of its bin (by more than ``jump_m``) until the vehicle has moved sideways
+of it by the beam's half-width at its range plus ``body_radius_m``: a farther echo then means that
+the nearer surface left the beam's edge (the beam narrows as the vehicle closes in, or a gust moved it
+a few centimetres), not that it is gone, and where it was heard it can still be in the vehicle's
+path (seed 61 e338: a box heard 1.03 m ahead for 4 s left the beam when the vehicle drifted 3 cm, the
+far wall's 2.45 m replaced it and the vehicle flew into the box). The clearance along a
 body axis is the smallest perpendicular distance to a remembered plane whose normal is within
 ``max_angle_deg`` of that axis: conservative for an oblique plane (the vehicle closes it at
 cos(angle) of its speed along the axis).
@@ -49,15 +55,18 @@ def oblique_wall(r1: float, r2: float, half_beam_rad: float) -> tuple[float, flo
 
 
 class ObstacleMemory:
-    def __init__(self, *, keep_s: float = 3.0, keep_travel_m: float = 2.0, bin_deg: float = 10.0, max_angle_deg: float = 60.0) -> None:
+    def __init__(self, *, keep_s: float = 3.0, keep_travel_m: float = 2.0, bin_deg: float = 10.0, max_angle_deg: float = 60.0,
+                 jump_m: float = math.inf, beam_half_rad: float = 0.0, body_radius_m: float = 0.0) -> None:
         self.keep_s, self.keep_travel_m = keep_s, keep_travel_m
+        self.jump_m, self.sin_beam, self.body_radius_m = jump_m, math.sin(beam_half_rad), body_radius_m
         self.bin_rad = math.radians(bin_deg)
         self.cos_max = math.cos(math.radians(max_angle_deg))
         self.x = self.y = 0.0  # odometry position (m)
         self.travel_m = 0.0  # path length so far
         self._t: float | None = None
-        # bin -> (stamp, nx, ny, offset along n, travel when stored, keep_s)
-        self.planes: dict[int, tuple[float, float, float, float, float, float]] = {}
+        # bin -> (stamp, nx, ny, offset along n, travel when stored, keep_s, sideways release distance or None)
+        self.planes: dict[int, tuple] = {}
+        self._where: dict[int, tuple[float, float]] = {}  # bin -> odometry position when its plane was stored
 
     def reset(self) -> None:
         self.planes.clear()
@@ -80,8 +89,19 @@ class ObstacleMemory:
         a = yaw_rad + axis_rad
         nx, ny = math.cos(a), math.sin(a)
         key = int(round(math.atan2(ny, nx) / self.bin_rad))
+        off = self.x * nx + self.y * ny + range_m
+        old = self.planes.get(key)
+        if old is not None and old[6] is not None and off > old[3] + self.jump_m and not self._stale(old, stamp_s):
+            x0, y0 = self._where[key]
+            if abs(-(self.x - x0) * old[2] + (self.y - y0) * old[1]) < old[6]:
+                return  # the nearer surface left the beam's edge: still there
         keep = self.keep_s if keep_s is None else min(keep_s, self.keep_s)
-        self.planes[key] = (stamp_s, nx, ny, self.x * nx + self.y * ny + range_m, self.travel_m, keep)
+        release = range_m * self.sin_beam + self.body_radius_m if keep_s is None else None  # heard, not inferred
+        self.planes[key] = (stamp_s, nx, ny, off, self.travel_m, keep, release)
+        self._where[key] = (self.x, self.y)
+
+    def _stale(self, plane: tuple, now: float) -> bool:
+        return now - plane[0] > plane[5] or self.travel_m - plane[4] > self.keep_travel_m
 
     def clearance(self, now: float, axis_rad: float, yaw_rad: float) -> float | None:
         """Smallest perpendicular distance to a remembered surface facing this body axis."""
@@ -89,10 +109,11 @@ class ObstacleMemory:
         ux, uy = math.cos(a), math.sin(a)
         best = None
         stale = []
-        for key, (t, nx, ny, off, trav, keep) in self.planes.items():
-            if now - t > keep or self.travel_m - trav > self.keep_travel_m:
+        for key, plane in self.planes.items():
+            if self._stale(plane, now):
                 stale.append(key)
                 continue
+            nx, ny, off = plane[1], plane[2], plane[3]
             if ux * nx + uy * ny < self.cos_max:
                 continue
             d = off - (self.x * nx + self.y * ny)

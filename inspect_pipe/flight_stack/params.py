@@ -59,13 +59,10 @@ class EstimationParams:
         0.03, 0.0, 1.0, "m/s^2/sqrt(s)", "speed observers: how fast the accelerometer's heading-frame bias "
         "wanders (the attitude estimate's drift and transients x g); learnt in ~3 s from the flow"
     )
-    flow_noise_m_s: float = param(
-        0.1, 0.001, 2.0, "m/s", "speed observers: noise of one flow speed or front range rate (PX4Flow noise "
-        "and the rotation its gyro leaves in); with accel_noise_m_s2 the speed follows it at ~0.15 s"
-    )
-    range_rate_noise_m_s: float = param(
-        0.1, 0.001, 2.0, "m/s", "speed observers, alarm modes: noise of a sonar's range rate, a slope over 0.45 s "
-        "(0.015 m samples at 5 m give 0.05 m/s; consecutive slopes share 4 of 5 samples: x2)"
+    speed_noise_m_s: float = param(
+        0.1, 0.001, 2.0, "m/s", "speed observers: noise of one speed measurement: a flow speed (PX4Flow noise and the "
+        "rotation its gyro leaves in; with accel_noise_m_s2 the speed follows it at ~0.15 s) or a sonar's range rate, "
+        "a slope over 0.45 s (0.015 m samples at 5 m give 0.05 m/s; consecutive slopes share 4 of 5 samples: x2)"
     )
     observer_gate_sigma: float = param(
         4.0, 1.0, 20.0, "sigma", "speed observers: an innovation beyond this many standard deviations is not used (5 in a row: restart)"
@@ -83,6 +80,10 @@ class EstimationParams:
     )
     memory_keep_s: float = param(8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long (0: no memory)")
     memory_keep_travel_m: float = param(2.0, 0.1, 20.0, "m", "obstacle memory: or after this much travel (odometry drift)")
+    body_radius_m: float = param(
+        0.27, 0.0, 1.0, "m", "the vehicle's half-size (arm and rotor, AscTec Hummingbird): a remembered surface that "
+        "left a sonar's beam stays until the vehicle has moved sideways of it by this plus the beam's half-width at its range"
+    )
     memory_max_angle_deg: float = param(60.0, 0.0, 89.0, "deg", "obstacle memory: surfaces facing an axis within this angle count for it")
     flow_stuck_samples: int = param(
         5, 2, 100, "samples", "a flow sensor repeating its speed bit for bit this many times ..."

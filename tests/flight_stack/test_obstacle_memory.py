@@ -75,3 +75,39 @@ def test_an_inferred_surface_is_kept_only_as_long_as_asked():
     assert m.clearance(0.9, math.pi / 2, 0.0) == pytest.approx(1.2)
     assert m.clearance(1.1, math.pi / 2, 0.0) is None
     assert m.clearance(1.1, 0.0, 0.0) == pytest.approx(1.5)
+
+
+def test_a_surface_that_leaves_the_beams_edge_is_kept_until_the_vehicle_moves_sideways_of_it():
+    # GIVEN a box heard 1.03 m ahead (seed 61 e338), a +-15 deg beam and a 0.27 m vehicle half-size
+    m = ObstacleMemory(keep_s=8.0, keep_travel_m=2.0, jump_m=0.15, beam_half_rad=math.radians(15.0), body_radius_m=0.27)
+    m.advance(0.0, 0.0, 0.0, 0.0)
+    m.add(0.0, 0.0, 1.03, 0.0)
+    # WHEN a drift of 3 cm sideways lets the far wall, 2.45 m ahead, into the beam instead
+    m.advance(1.0, 0.0, 0.03, 0.0)
+    m.add(1.0, 0.0, 2.45, 0.0)
+    # THEN the box is still ahead
+    assert m.clearance(1.0, 0.0, 0.0) == pytest.approx(1.03)
+    # AND an echo nearer than it, or farther by less than the jump, replaces it as before
+    m.add(1.1, 0.0, 1.10, 0.0)
+    assert m.clearance(1.1, 0.0, 0.0) == pytest.approx(1.10)
+    # AND once the vehicle has moved sideways by the beam's half-width there plus its half-size, the far echo counts
+    release = 1.10 * math.sin(math.radians(15.0)) + 0.27
+    m.advance(2.0, 0.0, 0.0, 0.0)
+    m.advance(3.0, 0.0, release + 0.01, 0.0)
+    m.add(3.0, 0.0, 2.45, 0.0)
+    assert m.clearance(3.0, 0.0, 0.0) == pytest.approx(2.45)
+    # AND a kept surface still goes after keep_s, and the next echo takes its place
+    m.add(3.1, 0.0, 1.0, 0.0)
+    m.add(11.0, 0.0, 2.45, 0.0)
+    assert m.clearance(11.0, 0.0, 0.0) == pytest.approx(1.0)
+    assert m.clearance(11.2, 0.0, 0.0) is None
+    m.add(11.2, 0.0, 2.45, 0.0)
+    assert m.clearance(11.2, 0.0, 0.0) == pytest.approx(2.45)
+
+
+def test_without_the_beam_and_size_the_newest_echo_of_a_bin_wins():
+    m = ObstacleMemory(keep_s=8.0, keep_travel_m=2.0)
+    m.advance(0.0, 0.0, 0.0, 0.0)
+    m.add(0.0, 0.0, 1.03, 0.0)
+    m.add(0.5, 0.0, 2.45, 0.0)
+    assert m.clearance(0.5, 0.0, 0.0) == pytest.approx(2.45)
