@@ -264,3 +264,6 @@ class BehaviorInputs:
     go_ahead_pressed: bool
     battery_percent: float
     flying: bool
+    #: while the link is lost: waiting_for_connectivity's station-keeping command, which the safety layer
+    #: bounds in the operator's place (None with the link up, in an alarm mode, or before the vehicle rests)
+    station_keeping: SpeedCommand | None = None

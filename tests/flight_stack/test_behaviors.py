@@ -204,3 +204,29 @@ def test_waiting_for_connectivity_brakes_to_rest_then_holds_where_it_stopped():
     v = wfc.update(pushed, 0.02)
     # THEN it flies back towards the rest point, not towards where the loss was detected
     assert v.vx_m_s == pytest.approx(-P.link_loss_hold_gain_1_s * 0.1)
+
+
+def test_near_a_wall_the_station_keeping_is_bounded_not_cancelled_while_the_link_is_lost():
+    import dataclasses
+
+    from inspect_pipe.flight_stack.messages import OperatorInput
+
+    node = MAVBehaviors(P)
+    lost = OperatorInput(SpeedCommand(), frozenset(), link_ok=False)
+
+    def tick(t, y, left_m):
+        e = dataclasses.replace(StateEstimate(1.5, 1.5, 0.0, 0.0, 0.0, EstimationMode.BOTTOM_FRONT), odometry=(0.0, y, 0.0))
+        return node.update(t, e, Clearance(left_m=left_m, down_m=1.5), lost, battery_percent=90, flying=True, dt=0.02)
+
+    # GIVEN the link lost with the vehicle at rest 0.92 m from a wall on its left: a little inside the safe distance,
+    # where prevent_collision holds (0 towards the wall) rather than backing away
+    assert tick(0.0, 0.0, 0.92).command.vy_m_s == 0.0
+    # WHEN a gust carries it 0.06 m towards the wall
+    out = tick(0.02, 0.06, 0.86)
+    # THEN the station keeping flies it back to its rest point, away from the wall (before 2026-11-28
+    # prevent_collision bounded the absent operator's zero instead and cancelled the hold on that axis:
+    # seed 83 e331 drifted 0.41 m in a 1 m/s gust, e1317 0.21 m)
+    assert out.command.vy_m_s == pytest.approx(-P.link_loss_hold_gain_1_s * 0.06)
+    # AND towards the wall the bound still holds: carried 0.06 m away from it, it does not close in again
+    out = tick(0.04, -0.06, 0.98)
+    assert out.command.vy_m_s <= 0.0 and "prevent_collision" in out.behaviors

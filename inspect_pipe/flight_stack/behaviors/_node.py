@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from inspect_pipe.flight_stack.arbitration import MotorSchema, Multiplexer, Subsumption
 from inspect_pipe.flight_stack.behaviors._obstacle_math import clamp
@@ -17,6 +17,7 @@ from inspect_pipe.flight_stack.behaviors.prevent_collision import PreventCollisi
 from inspect_pipe.flight_stack.behaviors.waiting_for_connectivity import WaitingForConnectivity
 from inspect_pipe.flight_stack.messages import (
     HOVER,
+    AxisVector,
     BehaviorInputs,
     Button,
     Clearance,
@@ -57,8 +58,9 @@ class MAVBehaviors:
             [(PreventCollision(p), 1.0), (LimitMaxHeight(p), 1.0), (EnsureReferenceSurfaceDetection(p), 1.0)]
         )
         autonomy = Multiplexer(_inspection, {False: GoAhead(p), True: InspectAhead(p)})
+        self.waiting_for_connectivity = WaitingForConnectivity(p)
         user = Subsumption(
-            [WaitingForConnectivity(p), Multiplexer(_inspection, {False: AttenuatedGo(p), True: AttenuatedInspect(p)})]
+            [self.waiting_for_connectivity, Multiplexer(_inspection, {False: AttenuatedGo(p), True: AttenuatedInspect(p)})]
         )
         self.root = Subsumption([safety, autonomy, user])
 
@@ -94,6 +96,13 @@ class MAVBehaviors:
             battery_percent=battery_percent,
             flying=flying,
         )
+        if not operator.link_ok and estimate.mode >= 0:
+            # The station keeping takes the operator's place: prevent_collision bounds it as it bounds the stick
+            # (bounding the absent operator's zero instead cancelled the hold on any axis near a wall, and a
+            # 1 m/s gust carried the vehicle 0.41 m off its rest point: seed 83 e331).
+            hold = self.waiting_for_connectivity.update(inputs, dt)
+            if hold is not None and hold != AxisVector.full(HOVER):
+                inputs = replace(inputs, station_keeping=hold.to_command())
         out = self.root.evaluate(inputs, dt)
         names = list(out.sources) if out is not None else []
         cmd = out.vector.to_command() if out is not None else HOVER

@@ -71,7 +71,11 @@ class PreventCollision:
         # The stop and the repulsion bound the speed towards the obstacle; the operator may still
         # leave faster (per axis, this behaviour suppresses the user's: without this, an escape
         # from a wall crawled at the repulsion speed, or not at all once inside the dead band).
-        user = inspection_command(inputs.stick, self.p) if inputs.inspection_mode else inputs.stick
+        # With the link lost, the station keeping stands in for the operator (waiting_for_connectivity).
+        if inputs.station_keeping is not None:
+            user = inputs.station_keeping
+        else:
+            user = inspection_command(inputs.stick, self.p) if inputs.inspection_mode else inputs.stick
         if vx is not None:
             vx = min(vx, user.vx_m_s)
         if left is not None and right is None:
