@@ -25,6 +25,7 @@ cos(angle) of its speed along the axis).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 __all__ = ["ObstacleMemory", "oblique_wall"]
 
@@ -54,6 +55,18 @@ def oblique_wall(r1: float, r2: float, half_beam_rad: float) -> tuple[float, flo
     return phi, r1 * math.cos(phi - h)
 
 
+class _Plane(NamedTuple):
+    stamp_s: float
+    nx: float  # unit normal, towards the surface (odometry frame)
+    ny: float
+    offset_m: float  # the plane is {p : p . n = offset_m}
+    travel_m: float  # the path length when it was stored
+    keep_s: float
+    release_m: float | None  # sideways motion that lets a farther echo replace it (None: an inferred surface)
+    x: float  # the odometry position when it was stored
+    y: float
+
+
 class ObstacleMemory:
     def __init__(self, *, keep_s: float = 3.0, keep_travel_m: float = 2.0, bin_deg: float = 10.0, max_angle_deg: float = 60.0,
                  jump_m: float = math.inf, beam_half_rad: float = 0.0, body_radius_m: float = 0.0) -> None:
@@ -64,9 +77,7 @@ class ObstacleMemory:
         self.x = self.y = 0.0  # odometry position (m)
         self.travel_m = 0.0  # path length so far
         self._t: float | None = None
-        # bin -> (stamp, nx, ny, offset along n, travel when stored, keep_s, sideways release distance or None)
-        self.planes: dict[int, tuple] = {}
-        self._where: dict[int, tuple[float, float]] = {}  # bin -> odometry position when its plane was stored
+        self.planes: dict[int, _Plane] = {}  # by the direction of the normal
 
     def reset(self) -> None:
         self.planes.clear()
@@ -91,17 +102,16 @@ class ObstacleMemory:
         key = int(round(math.atan2(ny, nx) / self.bin_rad))
         off = self.x * nx + self.y * ny + range_m
         old = self.planes.get(key)
-        if old is not None and old[6] is not None and off > old[3] + self.jump_m and not self._stale(old, stamp_s):
-            x0, y0 = self._where[key]
-            if abs(-(self.x - x0) * old[2] + (self.y - y0) * old[1]) < old[6]:
+        if old is not None and old.release_m is not None and off > old.offset_m + self.jump_m and not self._stale(old, stamp_s):
+            sideways = -(self.x - old.x) * old.ny + (self.y - old.y) * old.nx
+            if abs(sideways) < old.release_m:
                 return  # the nearer surface left the beam's edge: still there
         keep = self.keep_s if keep_s is None else min(keep_s, self.keep_s)
         release = range_m * self.sin_beam + self.body_radius_m if keep_s is None else None  # heard, not inferred
-        self.planes[key] = (stamp_s, nx, ny, off, self.travel_m, keep, release)
-        self._where[key] = (self.x, self.y)
+        self.planes[key] = _Plane(stamp_s, nx, ny, off, self.travel_m, keep, release, self.x, self.y)
 
-    def _stale(self, plane: tuple, now: float) -> bool:
-        return now - plane[0] > plane[5] or self.travel_m - plane[4] > self.keep_travel_m
+    def _stale(self, plane: _Plane, now: float) -> bool:
+        return now - plane.stamp_s > plane.keep_s or self.travel_m - plane.travel_m > self.keep_travel_m
 
     def clearance(self, now: float, axis_rad: float, yaw_rad: float) -> float | None:
         """Smallest perpendicular distance to a remembered surface facing this body axis."""
@@ -113,7 +123,7 @@ class ObstacleMemory:
             if self._stale(plane, now):
                 stale.append(key)
                 continue
-            nx, ny, off = plane[1], plane[2], plane[3]
+            nx, ny, off = plane.nx, plane.ny, plane.offset_m
             if ux * nx + uy * ny < self.cos_max:
                 continue
             d = off - (self.x * nx + self.y * ny)
