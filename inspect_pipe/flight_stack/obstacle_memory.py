@@ -9,7 +9,7 @@ heard a moment earlier face-on still says d.
 Frame: heading from the autopilot's attitude estimate (gyro-integrated; only changes of heading
 over a few seconds matter, so a slow drift does no harm), position integrated from the speed
 estimate. Each fresh echo becomes a plane facing the sensor's axis at the echo's range; planes
-are binned by the direction of their normal (10 deg bins, the newest echo of a bin wins) and
+are binned by the direction of their normal (10 deg bins, the newest echo of a bin wins, but see the next sentence) and
 forgotten after ``keep_s`` or ``keep_travel_m`` of travel (odometry drift). A heard surface is not
 replaced by a farther echo of its bin (by more than ``jump_m``) until the vehicle has moved sideways
 of it by the beam's half-width at its range plus ``body_radius_m``: a farther echo then means that
