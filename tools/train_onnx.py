@@ -9,7 +9,10 @@ condition-state bias chosen on the validation images, then quantised to int8 (``
 the float network; it is kept beside the checkpoint as ``CKPT.float.onnx``). ``--export-only``
 exports an existing checkpoint (e.g. of a run stopped early). The earlier network: ``--arch
 half_unet`` with ``_onnx_train.HALF_UNET_SETTINGS``; ``--finetune-from PHASE1.pt`` runs its
-phase 2 alone from a phase-1 checkpoint trained with the same settings.
+phase 2 alone from a phase-1 checkpoint trained with the same settings. ``--calibrate-only
+CLASS[,CLASS]`` fits those classes' map calibrations of the existing network OUT on the validation
+images (weights and operating points unchanged); when OUT is the shipped default decider, the
+states network's offsets for its decisions are fitted again for the new file (its SHA-256 changed).
 """
 
 from __future__ import annotations
@@ -57,6 +60,20 @@ def _finetune_only(src: Path, ckpt: Path, cfg, data: Path) -> None:
     finetune(ckpt, cfg, root=data, log=lambda s: print(s, flush=True))
 
 
+def _calibrate_only(model: Path, data: Path, classes: tuple[str, ...]) -> None:
+    from inspect_pipe.saliency_defects._onnx_detect import STATES_SCALE, condition_state_onnx_path, default_onnx_path
+    from inspect_pipe.saliency_defects._onnx_train import CALIBRATED_CLASSES, load_parts, set_attached_bias, set_map_calibration
+
+    unknown = [c for c in classes if c not in CALIBRATED_CLASSES]
+    if unknown or not model.is_file():
+        raise SystemExit(f"error: {model}: " + (f"no calibration rule for {', '.join(unknown)} (choose from {', '.join(CALIBRATED_CLASSES)})"
+                                                if unknown else "no such network"))
+    _, val, _ = load_parts(data)
+    set_map_calibration(model, val, classes=classes, log=lambda s: print(s, flush=True))
+    if model.resolve() == default_onnx_path().resolve() and condition_state_onnx_path().is_file():
+        set_attached_bias(condition_state_onnx_path(), model, STATES_SCALE, val=val, log=lambda s: print(s, flush=True))
+
+
 def main(argv=None) -> None:
     from inspect_pipe.saliency_defects._onnx_train import (
         INT8,
@@ -78,10 +95,14 @@ def main(argv=None) -> None:
     ap.add_argument("--version", default="3")
     ap.add_argument("--finetune-from", type=Path, default=None,
                     help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
+    ap.add_argument("--calibrate-only", default=None, metavar="CLASS[,CLASS]",
+                    help="fit these classes' map calibrations of the existing network OUT on the validation images")
     for f in dataclasses.fields(OnnxTrainConfig):
         if f.type in ("int", "float", "str"):
             ap.add_argument("--" + f.name.replace("_", "-"), type=eval(f.type), default=f.default)
     a = ap.parse_args(argv)
+    if a.calibrate_only:
+        return _calibrate_only(a.out, a.data, tuple(a.calibrate_only.split(",")))
     ckpt = a.ckpt or a.out.with_suffix(".pt")
     if not a.export_only:
         cfg = OnnxTrainConfig(**{f.name: getattr(a, f.name) for f in dataclasses.fields(OnnxTrainConfig)

@@ -6,6 +6,7 @@ Defined here once; the engines only differ in how they compute their probability
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 
 import cv2
@@ -31,19 +32,27 @@ def to_u8(p: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(p * np.float32(255)), 0, 255).astype(np.uint8)
 
 
+def calibrate(p: np.ndarray, operating_point_u8: int, gain: float) -> np.ndarray:
+    """A class's float probabilities (0..1) calibrated so that its operating point is 0.5 and the
+    logit around it is scaled by ``gain``: ``q = sigmoid(gain * (logit(p) - logit(e)))``, with ``e =
+    (t - 0.5) / 255`` the least probability the uint8 decision at ``t`` keeps, so ``to_u8(q) >= 128``
+    exactly where ``to_u8(p) >= t``. A gain below 1 spreads the map, above 1 sharpens it."""
+    e = (int(operating_point_u8) - 0.5) / 255
+    q = np.clip(np.asarray(p, np.float64), 1e-9, 1 - 1e-9)
+    z = float(gain) * (np.log(q) - np.log1p(-q) - np.log(e / (1 - e)))
+    return 1 / (1 + np.exp(-np.clip(z, -40, 40)))
+
+
+@functools.lru_cache(maxsize=16)
 def calibration_lut(operating_point_u8: int, gain: float) -> np.ndarray:
-    """A monotone map of uint8 probabilities (256 entries) that puts the operating point at 128 and
-    scales the logit around it by ``gain``: ``q = sigmoid(gain * (logit(p) - logit(t)))``. Every
-    decision at the operating point is kept (``p >= t`` exactly when ``q >= 128``); with a gain
-    above 1 the map is sharper, nearer the 0/1 it predicts (a lower mean absolute error)."""
-    eps = 0.5 / 255
-    p = np.clip(np.arange(256, dtype=np.float64) / 255, eps, 1 - eps)
-    t = min(max(int(operating_point_u8) / 255, eps), 1 - eps)
-    z = float(gain) * (np.log(p / (1 - p)) - np.log(t / (1 - t)))
-    q = np.floor(255 / (1 + np.exp(-z)) + 0.5)  # half up: the operating point maps to 128
-    q[: int(operating_point_u8)] = np.minimum(q[: int(operating_point_u8)], 127)
-    q[int(operating_point_u8):] = np.maximum(q[int(operating_point_u8):], 128)
-    return q.astype(np.uint8)
+    """:func:`calibrate` as a table from 16-bit probabilities (``v / 65535``, index 0..65535) to the
+    calibrated uint8 map. Maps are calibrated at 16 bits after their up-sampling, so a saturated
+    network keeps its resolution (the first network's crack map has 5 uint8 levels above its
+    operating point of 251, about 1150 at 16 bits) and every decision is kept: ``lut[v] >= 128``
+    exactly where ``to_u8(v / 65535) >= t``."""
+    lut = to_u8(calibrate(np.arange(65536) / 65535, operating_point_u8, gain))
+    lut.flags.writeable = False
+    return lut
 
 
 def tiles(h: int, w: int, tile_px: int, margin_px: int) -> Iterator[tuple[tuple[int, int, int, int], tuple[int, int, int, int]]]:

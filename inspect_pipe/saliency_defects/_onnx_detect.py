@@ -60,10 +60,10 @@ class OnnxModel:
     severity_output: str | None = None
     #: Added to the condition-state logits before the arg-max (chosen on the validation images).
     severity_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: Per class, the calibration of its probability map (``_core.calibration_lut``, fitted on the
-    #: validation images; metadata ``calibration``): the maps this engine returns are calibrated,
-    #: and that class's threshold is 128.
-    calibration_luts: dict = field(default_factory=dict)
+    #: Per class, the calibration of its probability map, (operating point u8, gain) of
+    #: ``_core.calibrate`` / ``calibration_lut`` (fitted on the validation images; metadata ``calibration``): the maps
+    #: this engine returns are calibrated, and that class's threshold is 128.
+    calibration: dict[str, tuple[int, float]] = field(default_factory=dict)
     #: For a network without a condition-state head: the network whose head gives the condition
     #: state of each corrosion pixel this one decides (the shipped default: v3's, see
     #: :func:`with_condition_states`); None: no states.
@@ -138,17 +138,17 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
         if not isinstance(bias, (list, tuple)) or len(bias) != 3 or not all(isinstance(b, (int, float)) for b in bias):
             raise ValueError("ONNX model metadata: severity logit_bias must be 3 numbers")
     thresholds = {k: int(v) for k, v in ops.items()}
-    luts = {}
+    cal = {}
     for k, c in (meta.get("calibration") or {}).items():
         ok = (k in classes and isinstance(c, dict) and isinstance(c.get("gain"), (int, float)) and 0.1 <= c["gain"] <= 100
               and c.get("operating_point_u8") == thresholds.get(k))
         if not ok:
             raise ValueError(f"ONNX model metadata: calibration of {k!r} must give a gain in [0.1, 100] at the class's operating point")
-        luts[k] = calibration_lut(thresholds[k], float(c["gain"]))
-        thresholds[k] = int(luts[k][thresholds[k]])
+        cal[k] = (thresholds[k], float(c["gain"]))
+        thresholds[k] = 128
     return OnnxModel(path, sess, meta, classes, thresholds,
                      {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes},
-                     sev.get("output") if sev is not None else None, tuple(float(b) for b in bias), luts)
+                     sev.get("output") if sev is not None else None, tuple(float(b) for b in bias), cal)
 
 
 def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:
@@ -219,14 +219,17 @@ def onnx_severity_logits(image: np.ndarray, model: OnnxModel) -> np.ndarray:
     return _full_logits(z[0], _stride(model), h, w)
 
 
-def _full_u8(p: np.ndarray, stride: int, h: int, w: int) -> np.ndarray:
+def _full_u8(p: np.ndarray, stride: int, h: int, w: int, cal: tuple[int, float] | None = None) -> np.ndarray:
     """One class's output map (float 0..1 at the output resolution) -> (h, w) uint8 at the
     input resolution: rounded to 0..255, up-sampled bilinearly by ``stride`` (cv2 and the
-    training graph's bilinear up-sampling agree to within one grey level), cropped."""
-    q = to_u8(p)
+    training graph's bilinear up-sampling agree to within one grey level), cropped. With ``cal``
+    (the class's (operating point, gain)) rounded to 16 bits instead, up-sampled, then calibrated
+    to 8 bits (``_core.calibration_lut``)."""
+    q = to_u8(p) if cal is None else np.clip(np.rint(p * np.float32(65535)), 0, 65535).astype(np.uint16)
     if stride != 1:
         q = cv2.resize(q, (q.shape[1] * stride, q.shape[0] * stride), interpolation=cv2.INTER_LINEAR)
-    return q[:h, :w]
+    q = q[:h, :w]
+    return q if cal is None else np.take(calibration_lut(*cal), q)
 
 
 def _check(image: np.ndarray) -> None:
@@ -261,7 +264,7 @@ def onnx_maps(
     s = _stride(model)
     if h * w <= whole_max_px:
         p, z = _run(model, _prepare(image, model.meta)[None], severity=sev)
-        return _calibrated({k: _full_u8(p[0, i], s, h, w) for i, k in want}, model), \
+        return {k: _full_u8(p[0, i], s, h, w, model.calibration.get(k)) for i, k in want}, \
             (_full_states(z[0], s, h, w, model.severity_bias) if sev else None)
     out = {k: np.zeros((h, w), np.uint8) for _, k in want}
     states = np.zeros((h, w), np.uint8) if sev else None
@@ -269,10 +272,10 @@ def onnx_maps(
         p, z = _run(model, _prepare(np.ascontiguousarray(image[ty0:ty1, tx0:tx1]), model.meta)[None], severity=sev)
         core = (slice(y0 - ty0, y1 - ty0), slice(x0 - tx0, x1 - tx0))
         for i, k in want:
-            out[k][y0:y1, x0:x1] = _full_u8(p[0, i], s, ty1 - ty0, tx1 - tx0)[core]
+            out[k][y0:y1, x0:x1] = _full_u8(p[0, i], s, ty1 - ty0, tx1 - tx0, model.calibration.get(k))[core]
         if sev:
             states[y0:y1, x0:x1] = _full_states(z[0], s, ty1 - ty0, tx1 - tx0, model.severity_bias)[core]
-    return _calibrated(out, model), states
+    return out, states
 
 
 def scaled_input(image: np.ndarray, scale: float) -> np.ndarray | None:
@@ -299,13 +302,6 @@ def _attached_states(image: np.ndarray, model: OnnxModel, corrosion_u8: np.ndarr
         st = onnx_maps(small, model.states_model, kinds=("corrosion",), **kw)[1]
         return cv2.resize(st, (w, h), interpolation=cv2.INTER_NEAREST)
     return onnx_maps(image, model.states_model, kinds=("corrosion",), **kw)[1]
-
-
-def _calibrated(maps: dict[str, np.ndarray], model: OnnxModel) -> dict[str, np.ndarray]:
-    for k, lut in model.calibration_luts.items():
-        if k in maps:
-            maps[k] = cv2.LUT(maps[k], lut)
-    return maps
 
 
 def onnx_probabilities_u8(image: np.ndarray, model: OnnxModel, *, kinds=None, tile_px: int = TILE_PX,
@@ -377,7 +373,7 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
             s = _stride(model)
             attached = model.severity_output is None and model.states_model is not None and "corrosion" in kinds
             for j, i in enumerate(part):
-                probs = _calibrated({k: _full_u8(p[j, c], s, h, w) for c, k in enumerate(model.classes) if k in kinds}, model)
+                probs = {k: _full_u8(p[j, c], s, h, w, model.calibration.get(k)) for c, k in enumerate(model.classes) if k in kinds}
                 states = _full_states(z[j], s, h, w, model.severity_bias) if sev else \
                     _attached_states(images[i], model, probs["corrosion"], tile_px=tile_px) if attached else None
                 out[i] = _detection(probs, model, kinds, states)

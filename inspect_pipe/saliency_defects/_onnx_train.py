@@ -897,64 +897,77 @@ def set_attached_bias(path: Path, decider: Path, scale: float, root: Path | None
 
 # ----------------------------------------------------------------------------- map calibration
 
-#: Gains of the probability-map calibration searched on the validation images (``_core.calibration_lut``).
-CALIBRATION_GAINS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
-#: Classes whose map is scored as a map (the salient-object protocol's MAE), so calibrated. The
-#: corrosion and crack maps are left as trained: the register's confidence rules read them.
-CALIBRATED_CLASSES = ("surface",)
+#: Gains of the probability-map calibration searched on the validation images (``_core.calibrate``).
+CALIBRATION_GAINS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Classes whose map is calibrated at export, and the score each calibration minimises on the
+#: validation images: ``surface`` is scored as a map by the salient-object protocol's mean absolute
+#: error; ``crack`` by the Brier score (mean squared error against the 0/1 labels, a proper scoring
+#: rule: lowest where the map is a probability), which keeps the map's range below the operating
+#: point that the register's seam screen reads (a sharper map pushes it to 0). Corrosion is left as
+#: trained: the report's hard-rust rule reads its map.
+CALIBRATED_CLASSES = {"surface": "MAE", "crack": "Brier"}
 
 
-def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_fbeta_loss: float = 0.002) -> dict | None:
+def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_loss: float = 0.002) -> dict | None:
     """The calibration gain of class ``cls``'s map chosen on the validation ``items``: the lowest
-    mean absolute error (against the 0/1 labels) among the gains whose max F-beta (salient-object
-    protocol) stays within ``max_fbeta_loss`` of the uncalibrated map's. None when the
-    uncalibrated map is best."""
+    score (``CALIBRATED_CLASSES``) among the gains whose figure stays within ``max_loss`` of the
+    uncalibrated map's (surface: max F-beta of the salient-object protocol; crack: F with the 2 px
+    tolerance at the operating point). Each gain is scored on the maps inference returns with it.
+    None when the uncalibrated map is best."""
     import dataclasses
 
-    from ._core import calibration_lut
     from ._metrics import max_fbeta, saliency_curves
     from ._onnx_detect import load_onnx_model, onnx_maps
 
-    m = dataclasses.replace(load_onnx_model(path), calibration_luts={})
-    t = int(m.meta["operating_points_u8"][cls])
-    raw = [(onnx_maps(np.ascontiguousarray(it.rgb[:, :, ::-1]), m, kinds=(cls,))[0][cls], it.gt) for it in items]
+    base = load_onnx_model(path)
+    t = int(base.meta["operating_points_u8"][cls])
+    rule = CALIBRATED_CLASSES[cls]
 
-    def score(lut):
-        maps = [(lut[p] if lut is not None else p, g) for p, g in raw]
-        mae = float(np.mean([np.abs(p.astype(np.float32) / 255 - g).mean() for p, g in maps]))
+    def score(gain: float | None) -> tuple[float, float]:
+        m = dataclasses.replace(base, calibration={} if gain is None else {cls: (t, gain)},
+                                thresholds_u8={**base.thresholds_u8, cls: t if gain is None else 128})
+        maps = [(onnx_maps(np.ascontiguousarray(it.rgb[:, :, ::-1]), m, kinds=(cls,))[0][cls], it.gt) for it in items]
+        err = [(p.astype(np.float32) / 255 - g.astype(np.float32)) for p, g in maps]
+        loss = float(np.mean([(e * e).mean() if rule == "Brier" else np.abs(e).mean() for e in err]))
+        if cls == "crack":
+            counts = sum((tolerance_counts(p, g, TOL_PX[cls]) for p, g in maps[1:]), tolerance_counts(*maps[0], TOL_PX[cls]))
+            return loss, float(counts.prf()[2][m.thresholds_u8[cls]])
         curves = [saliency_curves(p, g)[:2] for p, g in maps]
-        return mae, max_fbeta([c[0] for c in curves], [c[1] for c in curves])
+        return loss, max_fbeta([c[0] for c in curves], [c[1] for c in curves])
 
-    mae0, f0 = score(None)
-    tried = {"uncalibrated": [round(mae0, 4), round(f0, 4)]}
+    loss0, f0 = score(None)
+    tried = {"uncalibrated": [round(loss0, 4), round(f0, 4)]}
     best = None
     for g in CALIBRATION_GAINS:
-        mae, f = score(calibration_lut(t, g))
-        tried[f"gain {g:g}"] = [round(mae, 4), round(f, 4)]
-        if f >= f0 - max_fbeta_loss and mae < mae0 and (best is None or mae < best[1]):
-            best = (g, mae, f)
+        loss, f = score(g)
+        tried[f"gain {g:g}"] = [round(loss, 4), round(f, 4)]
+        if f >= f0 - max_loss and loss < loss0 and (best is None or loss < best[1]):
+            best = (g, loss, f)
     if best is None:
         return None
+    figure = "F_2px" if cls == "crack" else "max_Fbeta"
     return {"operating_point_u8": t, "gain": best[0], "validation": {
-        "images": len(items), "MAE": round(best[1], 4), "max_Fbeta": round(best[2], 4), "MAE_uncalibrated": round(mae0, 4),
-        "max_Fbeta_uncalibrated": round(f0, 4), "tried (MAE, max F-beta)": tried,
-        "rule": f"lowest MAE with max F-beta within {max_fbeta_loss} of the uncalibrated map's"}}
+        "images": len(items), rule: round(best[1], 4), figure: round(best[2], 4), f"{rule}_uncalibrated": round(loss0, 4),
+        f"{figure}_uncalibrated": round(f0, 4), f"tried ({rule}, {figure})": tried,
+        "rule": f"lowest {rule} with {figure} within {max_loss} of the uncalibrated map's"}}
 
 
 def set_map_calibration(path: Path, val: dict[str, list[_Item]], *, classes=CALIBRATED_CLASSES,
                         log: Callable[[str], None] = print) -> dict:
     """Fit :func:`fit_map_calibration` for ``classes`` and store it in the model's metadata (after
-    the operating points are final: quantisation re-chooses them and drops the calibration)."""
+    the operating points are final: quantisation re-chooses them and drops the calibration); the
+    other classes' calibrations are kept."""
     meta = _read_meta(path)
-    cal = {}
+    cal = {k: v for k, v in (meta.get("calibration") or {}).items() if k not in classes}
     for c in classes:
         if c in meta["classes"] and val.get(c):
             r = fit_map_calibration(path, val[c], c)
             if r is not None:
                 cal[c] = r
-                v = r["validation"]
-                log(f"{c} map calibration: gain {r['gain']:g} at {r['operating_point_u8']}/255: validation MAE "
-                    f"{v['MAE_uncalibrated']:.4f} -> {v['MAE']:.4f}, max F-beta {v['max_Fbeta_uncalibrated']:.4f} -> {v['max_Fbeta']:.4f}")
+                v, rule = r["validation"], CALIBRATED_CLASSES[c]
+                fig = "F_2px" if c == "crack" else "max_Fbeta"
+                log(f"{c} map calibration: gain {r['gain']:g} at {r['operating_point_u8']}/255: validation {rule} "
+                    f"{v[rule + '_uncalibrated']:.4f} -> {v[rule]:.4f}, {fig} {v[fig + '_uncalibrated']:.4f} -> {v[fig]:.4f}")
     meta.pop("calibration", None)
     if cal:
         meta["calibration"] = cal

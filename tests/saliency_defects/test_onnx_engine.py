@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from cli.main import app
 from inspect_pipe.saliency_defects import _onnx_detect as od
+from inspect_pipe.saliency_defects._core import OPERATING_RANGE_U8
 from inspect_pipe.saliency_defects._metrics import mask_prf, tolerance_counts
 from inspect_pipe.saliency_defects._core import decide_u8
 
@@ -289,19 +290,45 @@ def test_cli_image_too_small_exits_2_and_others_are_written(tmp_path):
     assert (tmp_path / "out" / "a.prob.png").exists()
 
 
+def _with_and_without_calibration(model, cls: str, img):
+    """(calibrated map, the same network's uncalibrated map, the calibration's metadata)."""
+    cal = model.meta["calibration"][cls]
+    raw = dataclasses.replace(model, calibration={})
+    return od.onnx_probabilities_u8(img, model, kinds=(cls,))[cls], od.onnx_probabilities_u8(img, raw, kinds=(cls,))[cls], cal
+
+
 def test_calibrated_surface_map_keeps_the_decision_and_is_sharper(sev_model):
     # GIVEN the v3 network, whose surface map is calibrated (gain chosen on the validation images)
-    cal = sev_model.meta["calibration"]["surface"]
-    assert sev_model.thresholds_u8["surface"] == 128 and cal["validation"]["MAE"] < cal["validation"]["MAE_uncalibrated"]
-    raw_model = dataclasses.replace(sev_model, calibration_luts={})
+    assert sev_model.thresholds_u8["surface"] == 128
     img, _ = _fixture("crackforest_004.jpg", "crackforest_004.mask.png")
     # WHEN the surface map is computed with and without the calibration
-    cal_map = od.onnx_probabilities_u8(img, sev_model, kinds=("surface",))["surface"]
-    raw_map = od.onnx_probabilities_u8(img, raw_model, kinds=("surface",))["surface"]
-    # THEN the decision at the operating point is the same pixel for pixel, and the calibrated map lies nearer 0/1
-    assert np.array_equal(cal_map >= 128, raw_map >= cal["operating_point_u8"])
+    cal_map, raw_map, cal = _with_and_without_calibration(sev_model, "surface", img)
+    assert cal["gain"] > 1 and cal["validation"]["MAE"] < cal["validation"]["MAE_uncalibrated"]
+    # THEN the decision at the operating point is the same but for the up-sampling's rounding (16 against 8 bits),
+    # and the calibrated map lies nearer 0/1
+    assert np.mean((cal_map >= 128) != (raw_map >= cal["operating_point_u8"])) < 5e-4
     dist = lambda m: float(np.minimum(m, 255 - m.astype(int)).mean())  # noqa: E731
     assert dist(cal_map) < dist(raw_map)
+
+
+def test_default_crack_map_is_calibrated_away_from_the_end_of_the_range():
+    # GIVEN the default network, whose crack sigmoid saturates (operating point 251/255 on the raw map)
+    model = od.load_onnx_model(od.default_onnx_path())
+    img, gt = _fixture("crackforest_004.jpg", "crackforest_004.mask.png")
+    cal_map, raw_map, cal = _with_and_without_calibration(model, "crack", img)
+    # THEN its map is calibrated (gain chosen on the validation images by the Brier score, F at the point kept)
+    # and decided at 128, inside the core's operating range
+    lo, hi = OPERATING_RANGE_U8
+    assert cal["operating_point_u8"] == 251 and model.thresholds_u8["crack"] == 128 and lo < 128 < hi
+    v = cal["validation"]
+    assert v["Brier"] < v["Brier_uncalibrated"] and v["F_2px"] >= v["F_2px_uncalibrated"] - 0.002
+    # AND it decides the same pixels but for the up-sampling's rounding
+    assert np.mean((cal_map >= 128) != (raw_map >= 251)) < 5e-4
+    # AND what the raw map crowded into 5 grey levels above its point spreads over many
+    assert len(np.unique(raw_map[raw_map >= 251])) <= 5 < 60 < len(np.unique(cal_map[cal_map >= 128]))
+    # AND the map is a better probability of the labelled crack pixels (Brier score on this image)
+    brier = lambda m: float(((m / 255.0 - gt) ** 2).mean())  # noqa: E731
+    assert brier(cal_map) < brier(raw_map)
 
 
 def test_default_engine_gives_condition_states_from_the_v3_head(tmp_path):
