@@ -68,6 +68,7 @@ class RegisterParams:
     low_texture_features: int = 150  # fewer keypoints than this make a frame texture-poor
     low_texture_share: float = 0.1  # this share of texture-poor frames switches the sweep to low-texture detection
     texture_sample: int = 64  # evenly spaced frames detected first to estimate that share (each frame then decoded once)
+    texture_quick: int = 8  # the sample's first, evenly spaced: when half of them are texture-poor, so is the sweep
     keyframe_step: float = 0.05  # of the frame diagonal: closer frames are attached, not aligned
     bridge_budget: int = 400  # unguided matches allowed for joining disconnected groups
     pair_outlier_px: float = 3.0  # pairs whose correspondences disagree more after global alignment are dropped
@@ -301,8 +302,11 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
     The share is first estimated on ``texture_sample`` evenly spaced frames, detected (and kept
     in memory) before the others, so the remaining frames are decoded and detected once, with the
     preprocessing chosen (the 752x480 scaling sweeps are texture-poor: detecting every frame twice
-    doubled their feature time). Should the whole sweep then cross the threshold the sample missed,
-    every frame is detected again."""
+    doubled their feature time). The sample's first ``texture_quick`` frames (evenly spaced) go
+    first: when half of them are texture-poor the sweep is taken as such without the rest of the
+    sample's normal detection (Haltbrekken's 30 ROV frames, all poor: 8 normal detections of
+    0.3 s, not 30). Should the whole sweep then cross the threshold the sample missed, every frame
+    is detected again."""
     n = len(source)
     feats: dict[int, Features] = {}
     unplaced: dict[int, str] = {}
@@ -353,9 +357,15 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
         return params.low_texture_share < 1 and poor >= max(2, params.low_texture_share * len(fs))
 
     sample = _texture_sample(n, params.texture_sample)
-    in_sample = set(sample)
+    quick = [sample[k] for k in _texture_sample(len(sample), params.texture_quick)]
+    in_sample = set(quick)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        take(pool.map(lambda i: extract(i, "normal", keep=True), sample))
+        take(pool.map(lambda i: extract(i, "normal", keep=True), quick))
+        poor = sum(len(f) < params.low_texture_features for f in feats.values())
+        if not (len(feats) >= 2 and 2 * poor >= len(feats)):  # not clearly texture-poor: the whole sample
+            rest = [i for i in sample if i not in in_sample]
+            take(pool.map(lambda i: extract(i, "normal", keep=True), rest))
+            in_sample.update(rest)
         mode = "low_texture" if texture_poor(feats) else "normal"
         if mode == "low_texture":
             for i, f in zip(sorted(kept), pool.map(lambda i: detect(kept[i], "low_texture"), sorted(kept))):

@@ -89,3 +89,44 @@ def test_slow_sweep_aligns_keyframes_and_attaches_the_rest():
     assert len(g.keyframes) < 0.5 * len(Hs)
     near, cross = misalignment(g.H, dict(enumerate(Hs)), path.frame_wh)
     assert near.rmse_px < 0.5 and cross.rmse_px < 0.5 and cross.max_px < 3.0
+
+
+class _CountingSource:
+    """Frames of a texture-poor wall (smooth shading and a few faint spots), counting decodes."""
+
+    def __init__(self, n: int) -> None:
+        rng = np.random.default_rng(3)
+        yy, xx = np.mgrid[0:192, 0:256]
+        base = 120 + 20 * np.sin(xx / 40.0) + 10 * np.cos(yy / 30.0)
+        self.frames = [np.clip(base + rng.normal(0, 1.0, base.shape), 0, 255).astype(np.uint8) for _ in range(n)]
+        self.loads = [0] * n
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def name(self, i: int) -> str:
+        return f"f{i}"
+
+    def load(self, i: int) -> np.ndarray:
+        self.loads[i] += 1
+        return self.frames[i]
+
+
+def test_a_clearly_texture_poor_sweep_is_decided_on_the_quick_sample(monkeypatch):
+    from inspect_pipe.mosaic import _register
+
+    # GIVEN a 40-frame sweep whose every frame is texture-poor, and a count of the detections by mode
+    modes: list[str] = []
+    real = _register.detect_features
+
+    def counting(gray, **kw):
+        modes.append(kw.get("mode", "auto"))
+        return real(gray, **kw)
+
+    monkeypatch.setattr(_register, "detect_features", counting)
+    src = _CountingSource(40)
+    params = RegisterParams(texture_quick=8)
+    _register.extract_features(src, None, params, 2, None)
+    # THEN only the quick sample's 8 frames were detected normally, every frame once with equalisation, each decoded once
+    assert modes.count("normal") == 8 and modes.count("low_texture") == 40
+    assert src.loads == [1] * 40
