@@ -79,6 +79,7 @@ class OnnxTrainConfig:
     corrosion_crop_px: int = 256  # corrosion crops in phase 1 (crack, surface: crop_px)
     soft_f1: float = 1.0  # phase 1: weight of (1 - batch soft F1) on the corrosion channel
     severity_weight: float = 0.5  # weight of the condition-state cross-entropy (corrosion pixels)
+    degrade_p: float = 0.0  # share of crops degraded as a drone camera and a mosaic degrade the wall (_degrade)
     # phase 2: fine-tuning from phase 1's best checkpoint with more context for corrosion (larger
     # crops), a soft-F1 term on the corrosion channel and a lower lr; 0 steps: no phase 2
     ft_steps: int = 0
@@ -345,13 +346,40 @@ def _crop(item: _Item, size: int, rng: np.random.Generator, centre_p: float) -> 
     return rgb[y0:y0 + size, x0:x0 + size], lab[y0:y0 + size, x0:x0 + size]
 
 
-def _augment(rgb: np.ndarray, gt: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Flips, 90-degree turns, brightness / contrast / gamma; hue is kept (rust is a colour).
-    ``gt`` is any (H, W) label map (it is only turned and flipped)."""
+def _degrade(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """An 8-bit RGB crop as a drone's camera and the mosaic's resampling leave a wall: down-sampled
+    by 1-2.5x and back (area, then bilinear), then a defocus (Gaussian, sigma 0.3-1.5 px; 40 %) or a
+    motion blur (3-7 px at any angle; 20 %), then JPEG at quality 50-95. The geometry is kept, so
+    the labels are."""
+    h, w = rgb.shape[:2]
+    out = np.ascontiguousarray(rgb)
+    f = float(rng.uniform(1.0, 2.5))
+    if f > 1.05:
+        small = cv2.resize(out, (max(8, round(w / f)), max(8, round(h / f))), interpolation=cv2.INTER_AREA)
+        out = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    r = rng.random()
+    if r < 0.4:
+        out = cv2.GaussianBlur(out, (0, 0), float(rng.uniform(0.3, 1.5)))
+    elif r < 0.6:
+        n = int(rng.integers(3, 8))
+        k = np.zeros((n, n), np.float32)
+        k[n // 2, :] = 1.0 / n
+        k = cv2.warpAffine(k, cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), float(rng.uniform(0, 180)), 1.0), (n, n))
+        out = cv2.filter2D(out, -1, k / max(float(k.sum()), 1e-6))
+    ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(50, 96))])
+    return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if ok else out
+
+
+def _augment(rgb: np.ndarray, gt: np.ndarray, rng: np.random.Generator, degrade_p: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Flips, 90-degree turns, brightness / contrast / gamma; hue is kept (rust is a colour); with
+    probability ``degrade_p`` first :func:`_degrade`. ``gt`` is any (H, W) label map (it is only
+    turned and flipped)."""
     k = int(rng.integers(4))
     rgb, gt = np.rot90(rgb, k), np.rot90(gt, k)
     if rng.random() < 0.5:
         rgb, gt = rgb[:, ::-1], gt[:, ::-1]
+    if degrade_p > 0 and rng.random() < degrade_p:
+        rgb = _degrade(rgb, rng)
     x = rgb.astype(np.float32) / 255.0
     x = x ** float(np.exp(rng.normal(0, 0.2)))
     m = x.mean()
@@ -381,7 +409,7 @@ def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.G
         for _ in range(n or cfg.per_class_batch):
             it = train[c][int(rng.integers(len(train[c])))]
             rgb, lab = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
-            x, lab = _augment(rgb, lab, rng)
+            x, lab = _augment(rgb, lab, rng, cfg.degrade_p)
             g = lab > 0
             sev = np.full(g.shape, IGNORE, np.uint8)
             if it.states is not None:
