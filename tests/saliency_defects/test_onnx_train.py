@@ -289,3 +289,27 @@ def test_effnet_export_round_trip_with_the_severity_output(tmp_path):
     # AND the inference applies a stored bias: a large severe offset makes every state 'severe'
     biased = dataclasses.replace(m, severity_bias=(0.0, 0.0, 1e6))
     assert (od.onnx_maps(img, biased)[1] == 3).all()
+
+
+def test_degradation_keeps_the_geometry_and_leaves_the_recipe_alone_when_off():
+    import cv2
+
+    # GIVEN a crop with one sharp square and its label
+    rgb = np.full((96, 96, 3), 60, np.uint8)
+    rgb[30:60, 40:70] = (200, 90, 40)
+    lab = np.zeros((96, 96), np.uint8)
+    lab[30:60, 40:70] = 1
+    # WHEN it is degraded as a drone camera and the mosaic would
+    outs = [ot._degrade(rgb, np.random.default_rng(s)) for s in range(20)]
+    # THEN the image keeps its size and type, the square stays where its label is (the label stays valid) ...
+    for o in outs:
+        assert o.shape == rgb.shape and o.dtype == np.uint8
+        inside, outside = o[35:55, 45:65].mean(axis=(0, 1)), o[:20, :20].mean(axis=(0, 1))
+        assert inside[0] > outside[0] + 80
+    # ... and it is degraded: softer edges on average (resampling, blur, JPEG)
+    edge = lambda im: float(np.abs(cv2.Sobel(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY), cv2.CV_32F, 1, 0)).max())  # noqa: E731
+    assert np.mean([edge(o) for o in outs]) < 0.8 * edge(rgb)
+    # AND the training's augmentation applies it at degrade_p 1 (same draws otherwise: same turn and flip of the label)
+    a = ot._augment(rgb, lab, np.random.default_rng(5))
+    b = ot._augment(rgb, lab, np.random.default_rng(5), 1.0)
+    assert np.array_equal(a[1], b[1]) and not np.allclose(a[0], b[0], atol=0.02)
