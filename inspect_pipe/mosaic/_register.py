@@ -239,12 +239,16 @@ def _bridge_candidates(
     keyframes: int = 4, per_component: int = 24,
 ) -> list[tuple[int, int]]:
     """Unguided pairs that may join disconnected groups (no common layout predicts them): a few
-    well-textured keyframes of each smaller group against evenly spaced frames of the larger."""
+    well-textured keyframes of each smaller group, spread along it, against evenly spaced frames of
+    the larger. Well-textured: at least as many features as its ``3 k``-th best frame, ties kept, so
+    that where the detector's cap gives every frame the same count the keyframes still spread over
+    the whole group (they were its first frames: on a rendered sweep over a wall photo, all in the
+    pass that cannot overlap the other group)."""
 
     def spread(frames: list[int], k: int, textured: bool) -> list[int]:
-        if textured:
-            frames = sorted(frames, key=lambda f: -len(feats[f]))[: max(k * 3, k)]
-            frames.sort()
+        if textured and len(frames) > k * 3:
+            least = sorted((len(feats[f]) for f in frames), reverse=True)[k * 3 - 1]
+            frames = sorted(f for f in frames if len(feats[f]) >= least)
         if len(frames) <= k:
             return frames
         return [frames[int(round(t))] for t in np.linspace(0, len(frames) - 1, k)]

@@ -130,3 +130,21 @@ def test_a_clearly_texture_poor_sweep_is_decided_on_the_quick_sample(monkeypatch
     # THEN only the quick sample's 8 frames were detected normally, every frame once with equalisation, each decoded once
     assert modes.count("normal") == 8 and modes.count("low_texture") == 40
     assert src.loads == [1] * 40
+
+
+def test_bridge_keyframes_spread_over_a_group_whose_feature_counts_tie():
+    from inspect_pipe.mosaic import _register
+    from inspect_pipe.mosaic._features import Features
+
+    # GIVEN two groups of a low-texture sweep, where the detector's cap gives every frame 1500 features
+    feats = {f: Features(np.zeros((1500, 2), np.float32), np.zeros((1500, 128), np.uint8), False) for f in range(165)}
+    small, large = list(range(66)), list(range(66, 165))
+    # WHEN the unguided bridge candidates are chosen
+    cand = _register._bridge_candidates([large, small], feats, set(), 400)
+    # THEN the smaller group's keyframes spread over the whole group (its last pass is the one beside the other group)
+    keys = sorted({i for i, j in cand})
+    assert len(keys) == 4 and keys[0] <= 5 and keys[-1] >= 60
+    # AND where the counts differ, the best-textured frames are still the ones taken
+    feats.update({f: Features(np.zeros((200, 2), np.float32), np.zeros((200, 128), np.uint8), False) for f in range(0, 66, 2)})
+    keys = sorted({i for i, j in _register._bridge_candidates([large, small], feats, set(), 400)})
+    assert all(k % 2 == 1 for k in keys)
