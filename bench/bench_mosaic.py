@@ -81,7 +81,8 @@ def _wall_photo_sweep(photo: Path, folder: Path, seed: int) -> tuple[dict[int, n
     im = cv2.imread(str(photo))
     side = min(im.shape[:2])
     y0, x0 = (im.shape[0] - side) // 2, (im.shape[1] - side) // 2
-    wall = cv2.resize(im[y0:y0 + side, x0:x0 + side], (2048, 2048), interpolation=cv2.INTER_AREA if side > 2048 else cv2.INTER_LANCZOS4)
+    wall = cv2.resize(im[y0:y0 + side, x0:x0 + side], (2048, 2048),
+                      interpolation=cv2.INTER_AREA if side > 2048 else cv2.INTER_LANCZOS4)
     path = SweepPath(passes=5, per_pass=33, step_px=40, row_px=260, frame_wh=(512, 384), margin_px=100,
                      yaw_sigma_deg=2.5, scale_sigma=0.04, tilt_sigma_deg=2.0, focal_px=618.0)
     Hs = lawnmower_homographies(path, rng)

@@ -93,7 +93,8 @@ def run_mosaic(
             continue
         k = len(images)
         path = out_dir / _image_name(k)
-        written.append(writer.submit(write_png, path, mosaic, compression=1))  # level 1: 0.21 s against 0.35 s at 3 on synth_rust_sweep, 6 % larger
+        # PNG level 1: 0.21 s against 0.35 s at level 3 on synth_rust_sweep, 6 % larger
+        written.append(writer.submit(write_png, path, mosaic, compression=1))
         images.append(path)
         for f, h in Hc.items():
             H_all[f] = h

@@ -60,9 +60,9 @@ class OnnxModel:
     severity_output: str | None = None
     #: Added to the condition-state logits before the arg-max (chosen on the validation images).
     severity_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: Per class, the calibration of its probability map, (operating point u8, gain) of
-    #: ``_core.calibrate`` / ``calibration_lut`` (fitted on the validation images; metadata ``calibration``): the maps
-    #: this engine returns are calibrated, and that class's threshold is 128.
+    #: Per class, the calibration of its probability map: (operating point u8, gain) of
+    #: ``_core.calibrate`` / ``calibration_lut``, fitted on the validation images (metadata
+    #: ``calibration``). The maps this engine returns are calibrated; that class's threshold is 128.
     calibration: dict[str, tuple[int, float]] = field(default_factory=dict)
     #: For a network without a condition-state head: the network whose head gives the condition
     #: state of each corrosion pixel this one decides (the shipped default: v3's, see
