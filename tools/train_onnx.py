@@ -61,16 +61,33 @@ def _finetune_only(src: Path, ckpt: Path, cfg, data: Path) -> None:
 
 
 def _calibrate_only(model: Path, data: Path, classes: tuple[str, ...]) -> None:
-    from inspect_pipe.saliency_defects._onnx_detect import STATES_SCALE, condition_state_onnx_path, default_onnx_path
+    """Refit the map calibration of ``classes`` of the existing network ``model``: every check
+    first (one line, exit 2), so a bad call leaves the file as it was."""
+    from inspect_pipe.saliency_defects._core import SET_OF_CLASS
+    from inspect_pipe.saliency_defects._onnx_detect import STATES_SCALE, condition_state_onnx_path, default_onnx_path, load_onnx_model
     from inspect_pipe.saliency_defects._onnx_train import CALIBRATED_CLASSES, load_parts, set_attached_bias, set_map_calibration
 
     unknown = [c for c in classes if c not in CALIBRATED_CLASSES]
-    if unknown or not model.is_file():
-        raise SystemExit(f"error: {model}: " + (f"no calibration rule for {', '.join(unknown)} (choose from {', '.join(CALIBRATED_CLASSES)})"
-                                                if unknown else "no such network"))
-    _, val, _ = load_parts(data)
+    if unknown:
+        raise SystemExit(f"error: no calibration rule for {', '.join(unknown)} (choose from {', '.join(CALIBRATED_CLASSES)})")
+    try:
+        net = load_onnx_model(model)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"error: {model}: not a usable network ({str(e).splitlines()[0].split(' (')[0][:100]}); "
+                         "give the .onnx to calibrate with -o")
+    except Exception as e:  # onnx / onnxruntime parse errors of a damaged file
+        raise SystemExit(f"error: {model}: not a readable ONNX network ({type(e).__name__}); give the .onnx to calibrate with -o")
+    missing = [c for c in classes if c not in net.classes]
+    if missing:
+        raise SystemExit(f"error: {model}: the network has no class {', '.join(missing)} (has {', '.join(net.classes)})")
+    attached = model.resolve() == default_onnx_path().resolve() and condition_state_onnx_path().is_file()
+    need = set(classes) | ({"corrosion"} if attached else set())
+    _, val, _ = load_parts(data, classes=tuple(sorted(need)))
+    empty = [f"{SET_OF_CLASS[c]}/" for c in sorted(need) if not val.get(c)]
+    if empty:
+        raise SystemExit(f"error: {data}: no validation images in {', '.join(empty)} (give the shared data/defects folder)")
     set_map_calibration(model, val, classes=classes, log=lambda s: print(s, flush=True))
-    if model.resolve() == default_onnx_path().resolve() and condition_state_onnx_path().is_file():
+    if attached:
         set_attached_bias(condition_state_onnx_path(), model, STATES_SCALE, val=val, log=lambda s: print(s, flush=True))
 
 

@@ -927,13 +927,14 @@ def set_attached_bias(path: Path, decider: Path, scale: float, root: Path | None
 
 #: Gains of the probability-map calibration searched on the validation images (``_core.calibrate``).
 CALIBRATION_GAINS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
-#: Classes whose map is calibrated at export, and the score each calibration minimises on the
-#: validation images: ``surface`` is scored as a map by the salient-object protocol's mean absolute
-#: error; ``crack`` by the Brier score (mean squared error against the 0/1 labels, a proper scoring
-#: rule: lowest where the map is a probability), which keeps the map's range below the operating
-#: point that the register's seam screen reads (a sharper map pushes it to 0). Corrosion is left as
+#: Classes whose map is calibrated at export: (the score each calibration minimises on the
+#: validation images, the figure it must keep). ``surface`` is scored as a map by the salient-object
+#: protocol's mean absolute error, keeping its max F-beta; ``crack`` by the Brier score (mean squared
+#: error against the 0/1 labels, a proper scoring rule: lowest where the map is a probability), which
+#: keeps the map's range below the operating point that the register's seam screen reads (a sharper
+#: map pushes it to 0), keeping its F at the operating point (2 px tolerance). Corrosion is left as
 #: trained: the report's hard-rust rule reads its map.
-CALIBRATED_CLASSES = {"surface": "MAE", "crack": "Brier"}
+CALIBRATED_CLASSES = {"surface": ("MAE", "max_Fbeta"), "crack": ("Brier", "F_2px")}
 
 
 def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_loss: float = 0.002) -> dict | None:
@@ -949,7 +950,7 @@ def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_loss: f
 
     base = load_onnx_model(path)
     t = int(base.meta["operating_points_u8"][cls])
-    rule = CALIBRATED_CLASSES[cls]
+    rule, figure = CALIBRATED_CLASSES[cls]
 
     def score(gain: float | None) -> tuple[float, float]:
         m = dataclasses.replace(base, calibration={} if gain is None else {cls: (t, gain)},
@@ -973,7 +974,6 @@ def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_loss: f
             best = (g, loss, f)
     if best is None:
         return None
-    figure = "F_2px" if cls == "crack" else "max_Fbeta"
     return {"operating_point_u8": t, "gain": best[0], "validation": {
         "images": len(items), rule: round(best[1], 4), figure: round(best[2], 4), f"{rule}_uncalibrated": round(loss0, 4),
         f"{figure}_uncalibrated": round(f0, 4), f"tried ({rule}, {figure})": tried,
@@ -982,20 +982,20 @@ def fit_map_calibration(path: Path, items: list[_Item], cls: str, *, max_loss: f
 
 def set_map_calibration(path: Path, val: dict[str, list[_Item]], *, classes=CALIBRATED_CLASSES,
                         log: Callable[[str], None] = print) -> dict:
-    """Fit :func:`fit_map_calibration` for ``classes`` and store it in the model's metadata (after
-    the operating points are final: quantisation re-chooses them and drops the calibration); the
-    other classes' calibrations are kept."""
+    """Fit :func:`fit_map_calibration` for ``classes`` (those of the model that have validation
+    images) and store it in the model's metadata (after the operating points are final:
+    quantisation re-chooses them and drops the calibration); the other classes' calibrations are
+    kept."""
     meta = _read_meta(path)
-    cal = {k: v for k, v in (meta.get("calibration") or {}).items() if k not in classes}
-    for c in classes:
-        if c in meta["classes"] and val.get(c):
-            r = fit_map_calibration(path, val[c], c)
-            if r is not None:
-                cal[c] = r
-                v, rule = r["validation"], CALIBRATED_CLASSES[c]
-                fig = "F_2px" if c == "crack" else "max_Fbeta"
-                log(f"{c} map calibration: gain {r['gain']:g} at {r['operating_point_u8']}/255: validation {rule} "
-                    f"{v[rule + '_uncalibrated']:.4f} -> {v[rule]:.4f}, {fig} {v[fig + '_uncalibrated']:.4f} -> {v[fig]:.4f}")
+    fitted = [c for c in classes if c in meta["classes"] and val.get(c)]
+    cal = {k: v for k, v in (meta.get("calibration") or {}).items() if k not in fitted}
+    for c in fitted:
+        r = fit_map_calibration(path, val[c], c)
+        if r is not None:
+            cal[c] = r
+            v, (rule, fig) = r["validation"], CALIBRATED_CLASSES[c]
+            log(f"{c} map calibration: gain {r['gain']:g} at {r['operating_point_u8']}/255: validation {rule} "
+                f"{v[rule + '_uncalibrated']:.4f} -> {v[rule]:.4f}, {fig} {v[fig + '_uncalibrated']:.4f} -> {v[fig]:.4f}")
     meta.pop("calibration", None)
     if cal:
         meta["calibration"] = cal

@@ -184,6 +184,29 @@ def test_a_missing_or_damaged_checkpoint_is_one_line_not_a_traceback(tmp_path):
         tool.main([str(tmp_path), "-o", out, "--finetune-from", str(other), "--ckpt", str(tmp_path / "p2.pt")])
 
 
+
+def test_calibrate_only_refuses_bad_input_in_one_line_and_leaves_the_network_alone(tmp_path):
+    import shutil
+
+    tool = _tool()
+    net = tmp_path / "v1.onnx"
+    shutil.copy(od.default_onnx_path(), net)
+    before = net.read_bytes()
+    # GIVEN a data folder without the labelled sets THEN one line naming the folder and the sets, the file as it was
+    with pytest.raises(SystemExit, match="no validation images in crackforest/") as e:
+        tool.main([str(tmp_path / "nodata"), "-o", str(net), "--calibrate-only", "crack"])
+    assert "\n" not in str(e.value) and net.read_bytes() == before
+    # AND a damaged or missing network, or a class without a calibration rule, the same
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a network")
+    for out, cls, match in ((bad, "crack", "not a usable network"), (tmp_path / "none.onnx", "crack", "not a usable network"),
+                            (net, "rust", "no calibration rule for rust")):
+        with pytest.raises(SystemExit, match=match) as e:
+            tool.main([str(tmp_path), "-o", str(out), "--calibrate-only", cls])
+        assert "\n" not in str(e.value)
+    assert net.read_bytes() == before
+
+
 # ----------------------------------------------------------------------------- pretrained encoder (issue 21)
 
 
