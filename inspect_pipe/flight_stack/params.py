@@ -110,7 +110,10 @@ class BehaviorParams:
     safe_distance_m: float = param(1.0, 0.4, 4.0, "m", "minimum distance allowed to an obstacle")
     response_time_s: float = param(0.3, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
-    repulsion_gain_1_s: float = param(1.6, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside")
+    repulsion_gain_1_s: float = param(
+        2.5, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside (beyond the dead band); at 1.6 a vehicle found "
+        "0.2 m inside once its range sensors came back (a blind drift) was still 0.13 m inside a second later"
+    )
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s", "prevent_collision backs away at most this fast (Fig. 6 E-F)")
     oblique_margin_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique "

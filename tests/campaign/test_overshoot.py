@@ -51,3 +51,23 @@ def test_overshoot_regression_stays_within_the_goal(seed, index, fname, before, 
     r = fly_episode(generate_episode(seed, index, honest_faults=False), "ours")
     assert not r.collided
     assert r.overshoot_m is not None and r.overshoot_m <= bound < before
+
+
+# Episodes of the honest simulator's generator: (campaign seed, episode, regression file, overshoot
+# before the fix, bound now)
+HONEST_CASES = [
+    # every range sensor lost for 2.1 s at the front wall's line: a blind drift of 0.16 m past it,
+    # backed out of too slowly once the sensors came back (repulsion 1.6 1/s: 0.133 m a second later)
+    (12, 110, "campaign_s12_e00110_wall_push.yaml", 0.133, 0.10),
+]
+
+
+@pytest.mark.parametrize("seed,index,fname,before,bound", HONEST_CASES, ids=[c[2] for c in HONEST_CASES])
+def test_blind_drift_is_backed_out_of_within_the_goal(seed, index, fname, before, bound):
+    assert (REGRESSIONS / fname).is_file()
+    # GIVEN every range sensor lost while the vehicle holds at a wall's stop line (it drifts past
+    # the line unseen) WHEN the sensors come back THEN prevent_collision's repulsion has it back
+    # within the goal of the line by the time the metric counts again (1 s after the fault)
+    r = fly_episode(generate_episode(seed, index), "ours")
+    assert not r.collided
+    assert r.overshoot_m is not None and r.overshoot_m <= bound < before
