@@ -28,6 +28,13 @@ from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, 
 from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory, oblique_wall
 from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
 
+# The height below which a bottom range sensor's reading is its clamp, within its noise: the HRLV
+# sonar reports 0.30 m when closer (+-0.006 m), the TeraRanger One 0.20 m (+-0.02 m). Judged at
+# 0.35 m, a hover the controller had just arrested at 0.33 m after a battery sag's dip was a
+# touchdown (campaign seed 11 e190); so was a 0.35 m TeraRanger threshold 0.27 m above the floor.
+SONAR_FLOOR_M = 0.32
+TOF_FLOOR_M = 0.25
+
 __all__ = ["MAVStateUpdater", "SensorStatus", "select_mode"]
 
 
@@ -226,11 +233,19 @@ class MAVStateUpdater:
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
         # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.
         vz_flow = fflow.vz_m_s if fflow is not None else None
-        source, latency = None, 0.0
+        # Each range sensor within its range: below the bottom sonar's clamp zone the TeraRanger,
+        # which reads down to 0.20 m, measures the height (the sonar reads 0.30 m there whether
+        # the vehicle hovers 0.3 m up or stands on the floor, and a landing that hopped after a
+        # battery sag took the hop's top, 0.21 m above the floor, for the touchdown and fell from
+        # it at 0.95 m/s: campaign seed 113 e1766). ``height_floor`` is the height below which the
+        # measuring sensor's reading is its clamp within its noise (the flight machine's "down").
+        source, latency, height_floor = None, 0.0, None
         if status.bottom_px:
-            source, latency = m.bottom_sonar, p.sonar_latency_s
+            source, latency, height_floor = m.bottom_sonar, p.sonar_latency_s, SONAR_FLOOR_M
+            if status.bottom_tof and source.range_m < p.sonar_clamp_zone_m:  # type: ignore[union-attr,operator]
+                source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
         elif status.bottom_tof:
-            source, latency = m.bottom_tof, p.tof_latency_s
+            source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
         # "+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
         # a brief loss of every range sensor is not yet a lost reference. Descending at once, a
         # vehicle that came to rest blind beside a box edge brought its rotors onto that edge
@@ -280,6 +295,7 @@ class MAVStateUpdater:
             hist.popleft()
         est = StateEstimate(
             height_m=self.height.height_m,
+            height_floor_m=height_floor,
             altitude_m=self.height.altitude_m,
             vx_m_s=vx,
             vy_m_s=vy,

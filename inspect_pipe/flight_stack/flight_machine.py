@@ -6,6 +6,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from inspect_pipe.flight_stack.estimation import SONAR_FLOOR_M
 from inspect_pipe.flight_stack.messages import EstimationMode, StateEstimate
 from inspect_pipe.flight_stack.params import FlightMachineParams
 
@@ -107,13 +108,10 @@ class FlightMachine:
             elif (s is FlightState.DESCENDING or est.mode == EstimationMode.ALARM_TOF) and est.height_m < p.descend_end_height_m:
                 self._go(FlightState.LANDING, now)
         elif s is FlightState.LANDING:
-            # Down: the height at its sensor's minimum, where it clamps, within its noise (the HRLV
-            # sonar reports 0.30 m when closer, +-0.006 m: 0.32; in mode -1 only the TeraRanger
-            # measures, down to 0.20 m, +-0.02 m: 0.25). Judged at 0.35 m, a hover the controller
-            # had just arrested at 0.33 m after a battery sag's dip was a touchdown, and the ramp
-            # dropped the vehicle onto the floor at 1 m/s (campaign seed 11 e190); so did a 0.35 m
-            # TeraRanger threshold 0.27 m above the floor.
-            down_m = 0.25 if est.mode == EstimationMode.ALARM_TOF else 0.32
+            # Down: the height at its sensor's minimum, where it clamps, within its noise (the
+            # estimator says which sensor measures it: ``StateEstimate.height_floor_m``); with no
+            # measured height, the sonar's.
+            down_m = est.height_floor_m if est.height_floor_m is not None else SONAR_FLOOR_M
             unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT  # no measured height
             on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
             # The time-out stands in for a touchdown the sensors cannot confirm; with a valid

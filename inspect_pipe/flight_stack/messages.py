@@ -176,6 +176,10 @@ class StateEstimate:
     vy_m_s: float
     vz_m_s: float
     mode: EstimationMode
+    # The height below which the sensor measuring it reads its clamp (sonar 0.32 m, TeraRanger
+    # 0.25 m, noise included): at or below it the vehicle may be standing on the floor. None: no
+    # sensor measures the height.
+    height_floor_m: float | None = None
     # Odometry: the speed estimate integrated in a frame fixed at switch-on, turned by the
     # autopilot's heading (x, y in m, yaw in rad); None without a heading. It drifts: good for
     # holding station over seconds, not for navigation.

@@ -545,3 +545,25 @@ def test_the_front_range_re_seats_on_a_jump_instead_of_reading_it_as_motion():
     assert obs.value == pytest.approx(4.8 - 0.2 * t, abs=0.05)
     assert obs.rate == pytest.approx(rate_before, abs=0.02)
     assert obs.bias == pytest.approx(bias_before, abs=0.02)
+
+
+def test_in_the_sonars_clamp_zone_the_teraranger_measures_the_height():
+    # GIVEN a vehicle hovering 0.26 m up: the bottom sonar reads its 0.30 m clamp, the
+    # TeraRanger (down to 0.20 m) the truth
+    upd = MAVStateUpdater()
+    for k in range(100):
+        t = 1.0 + 0.02 * k
+        m = dataclasses.replace(_meas(t, height=0.26, vx=0.0, vy=0.0, vz=0.0), bottom_sonar=RangeReading(t, 0.30))
+        est, _ = upd.update(t, m)
+    # THEN the height is the TeraRanger's, above the height its clamp begins at: not "down"
+    assert est.mode == EstimationMode.BOTTOM_FRONT
+    assert est.height_m == pytest.approx(0.26, abs=0.01)
+    assert est.height_floor_m == pytest.approx(0.25) and est.height_m > est.height_floor_m
+    # AND above the clamp zone the sonar measures it, with its own clamp height
+    for k in range(100):
+        t = 3.0 + 0.02 * k
+        est, _ = upd.update(t, _meas(t, height=1.0, vx=0.0, vy=0.0, vz=0.0))
+    assert est.height_m == pytest.approx(1.0, abs=0.01) and est.height_floor_m == pytest.approx(0.32)
+    # AND with no range sensor below, no height floor
+    est, _ = upd.update(6.0, _meas(5.0))
+    assert est.mode == EstimationMode.ALARM_NONE and est.height_floor_m is None
