@@ -96,11 +96,6 @@ def mix(
     c = lo if c < lo else hi if c > hi else c
     b0, b1, b2, b3 = c + r0, c + r1, c + r2, c + r3
     yw = tz / (4.0 * torque_m)
-    if (
-        b0 + yw <= m0 and b2 + yw <= m2 and b1 - yw <= m1 and b3 - yw <= m3
-        and b0 + yw >= 0.0 and b2 + yw >= 0.0 and b1 - yw >= 0.0 and b3 - yw >= 0.0
-    ):
-        return b0 + yw, b1 - yw, b2 + yw, b3 - yw  # the yaw fits (the usual case): nothing to clip
     k = 1.0
     if yw > 0.0:  # motors 0 and 2 up, 1 and 3 down
         for b, mx in ((b0, m0), (b2, m2)):
