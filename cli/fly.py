@@ -10,9 +10,6 @@ import typer
 
 from cli._common import choices, one_line_errors
 from inspect_pipe.errors import InputError
-from inspect_pipe.flight import ExitStatus, FlightLogWriter, load_scenario, run_scenario
-from inspect_pipe.flight_stack import StackParams
-from inspect_pipe.flight_stack.params import load_params
 
 HELP = (
     "Fly a scenario (YAML, inspect_pipe.scenario/1) in the simulated cargo hold and write the "
@@ -42,6 +39,11 @@ def fly(
     params: Annotated[Optional[Path], typer.Option("--params", help="stack parameter file {group: {name: value}} over the defaults; each value within its declared bounds (docs/flight.md)")] = None,
 ) -> None:
     """Fly a scenario in the simulated cargo hold and write the flight log."""
+    # imported here: the simulator (MuJoCo) costs every other command 0.26 s at start-up
+    from inspect_pipe.flight import ExitStatus, FlightLogWriter, load_scenario, run_scenario
+    from inspect_pipe.flight_stack import StackParams
+    from inspect_pipe.flight_stack.params import load_params
+
     sc = load_scenario(scenario)
     stack_params = load_params(params) if params is not None else None
     if params is not None and (mavlink_sim is not None or vehicle is not None):

@@ -638,25 +638,32 @@ def _start(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int,
 
 def fit_pose_model(
     H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], f0: float, principal: tuple[float, float],
-    *, self_calibrate: bool, params: AlignParams, give_up_px: float | None = None,
+    *, self_calibrate: bool, params: AlignParams, give_up_px: float | None = None, from_fixed_focal: bool = False,
 ) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool]:
     """Rectify the layout with ``f0``, then bundle-adjust the pose model on a thinned set of
     correspondences; returns (H, camera, errors of all correspondences, converged). A self-calibrated
-    fit stalled above ``give_up_px`` stops there (:func:`_stalled`)."""
+    fit stalled above ``give_up_px`` stops there (:func:`_stalled`).
+
+    Self-calibration starts from the chained layout ``H0``: its perspective is what finds the focal
+    length (from the similarity start synth_rust_paint_sweep ended 1.01 / 8.46 px corner error, f 938,
+    against 0.51 / 2.35, f 927). ``from_fixed_focal`` starts it instead from the pose model fitted with
+    ``f0`` fixed from the better start (:func:`_start`): where the chain has drifted, the free fit from
+    it crawls (vt_original_train_130: 0.70 px RMS after 60 evaluations against the pairs' 0.50; from
+    the fixed-focal fit 0.52 px in 9 + 15)."""
     from ._rectify import rectify
 
-    # self-calibration keeps the chained start: its perspective is what finds the focal length (from the similarity
-    # start synth_rust_paint_sweep ended 1.01 / 8.46 px corner error, f 938, against 0.51 / 2.35, f 927)
-    H_wall, _ = rectify(H0 if self_calibrate else _start(H0, corr, size_wh), size_wh, f0, principal)
+    fixed = replace(params, max_nfev=params.pose_max_nfev)
+    thinned = thin(corr, params.pose_points_per_pair)
+    cam = Camera(f0, *principal)
+    H_wall, _ = rectify(H0 if self_calibrate and not from_fixed_focal else _start(H0, corr, size_wh), size_wh, f0, principal)
+    if not self_calibrate or from_fixed_focal:
+        H_wall, cam, _, ok = adjust_poses(H_wall, thinned, cam, free_focal=False, free_distortion=False, params=fixed)
     if self_calibrate:  # along the flat valley of a free focal length, no restarts (they ended 6 px from it on synth_rust_sweep)
-        params = replace(params, ftol=params.self_calibration_ftol, max_nfev=params.self_calibration_max_nfev,
-                         restart_nfev=params.self_calibration_max_nfev)
-    else:
-        params = replace(params, max_nfev=params.pose_max_nfev)
-    H, cam, _, ok = adjust_poses(H_wall, thin(corr, params.pose_points_per_pair), Camera(f0, *principal),
-                                 free_focal=self_calibrate, free_distortion=self_calibrate and params.distortion, params=params,
-                                 give_up_px=give_up_px if self_calibrate else None)
-    return H, cam, pose_errors(H, cam, corr), ok
+        free = replace(params, ftol=params.self_calibration_ftol, max_nfev=params.self_calibration_max_nfev,
+                       restart_nfev=params.self_calibration_max_nfev)
+        H_wall, cam, _, ok = adjust_poses(H_wall, thinned, cam, free_focal=True, free_distortion=params.distortion,
+                                          params=free, give_up_px=give_up_px)
+    return H_wall, cam, pose_errors(H_wall, cam, corr), ok
 
 
 def quick_layout(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], *,
@@ -708,12 +715,19 @@ def align_group(
     if params.pose_model and len(frames) >= params.pose_min_frames:
         pairs_rms = pairwise_rms(corr, pair_H)
         limit = params.pose_ratio * pairs_rms + params.pose_slack_px
-        tries = [(float(focal_px), False)] if focal_px else []
-        tries.append((None, True))
-        for f0, self_cal in tries:
-            f0 = f0 or initial_focal(H0, size_wh, principal, pair_H, params)
+        give_up_px = params.stall_ratio * limit
+        # (given focal length, self-calibrate, from the fixed-focal fit): the last only after a self-calibrated fit
+        # that missed by less than the give-up margin (a slow start, not a scene the pose model cannot describe)
+        tries = [(float(focal_px), False, False)] if focal_px else []
+        tries += [(None, True, False), (None, True, True)]
+        f_self, given_fail = None, ""
+        for f0, self_cal, from_fixed in tries:
+            if from_fixed and not (0 < rms_all <= give_up_px):
+                break
+            f0 = f0 or f_self or initial_focal(H0, size_wh, principal, pair_H, params)
+            f_self = f0 if self_cal else None
             H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params,
-                                             give_up_px=params.stall_ratio * limit)
+                                             give_up_px=give_up_px, from_fixed_focal=from_fixed)
             rms = _rms(err, params.outlier_px)
             rms_all = float(np.sqrt(np.mean(err**2))) if len(err) else 0.0  # judged on all: a fit may leave whole pairs off
             if not ok:
@@ -725,10 +739,15 @@ def align_group(
                 fail = f"the pose model fits {rms_all:.2f} px RMS, its pairs {pairs_rms:.2f} px"
             else:
                 # a given focal length fails where a self-calibrated one fits: it contradicts the images
-                note = why and f"the focal length {focal_px:g} px contradicts the images ({why.split(' px ', 1)[1]}); self-calibration finds {cam.f:.0f} px"
+                note = given_fail and f"the focal length {focal_px:g} px contradicts the images ({given_fail}); self-calibration finds {cam.f:.0f} px"
                 return AlignResult(to_mosaic_frame(H, size_wh, H0), rms, per_pair_rms(err, corr), nfev, "pose", cam, note)
-            why = f"with the focal length {focal_px:g} px {fail}" if not self_cal else (
-                f"{why}; self-calibrated: {fail}" if why else fail)
+            if from_fixed:
+                why = f"{why} (from the fixed-focal fit: {fail.removeprefix('the pose model ')})"
+            elif not self_cal:
+                given_fail = fail
+                why = f"with the focal length {focal_px:g} px {fail}"
+            else:
+                why = f"{why}; self-calibrated: {fail}" if why else fail
     # all correspondences: 12 a pair let 8 unknowns a frame overfit them (Haltbrekken ROV: a 5-frame chain 9-21 px off)
     H_free, n = adjust_homographies(H0, corr, params=params)
     err = pair_errors(H_free, corr)
