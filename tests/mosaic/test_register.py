@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from inspect_pipe.mosaic import FolderSource, RegisterParams, register
 from inspect_pipe.mosaic.metrics import global_shape, misalignment
@@ -130,6 +131,42 @@ def test_a_clearly_texture_poor_sweep_is_decided_on_the_quick_sample(monkeypatch
     # THEN only the quick sample's 8 frames were detected normally, every frame once with equalisation, each decoded once
     assert modes.count("normal") == 8 and modes.count("low_texture") == 40
     assert src.loads == [1] * 40
+
+
+@pytest.mark.parametrize("texture_sample", [64, 8], ids=["in-the-sample", "after-the-sample"])
+def test_one_frame_too_dull_for_the_normal_detector_switches_the_sweep(texture_sample):
+    from inspect_pipe.mosaic import _register
+    from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame, textured_wall
+
+    # GIVEN a well-textured 24-frame sweep with one frame at a tenth of the contrast (the normal detector finds
+    # nothing in it, the low-texture one plenty): 4 % of the frames, under the share that switches a sweep
+    rng = np.random.default_rng(5)
+    path = SweepPath(passes=2, per_pass=12)
+    wall = textured_wall(700, 560, rng)
+    Hs = lawnmower_homographies(path, rng)
+    frames = [render_frame(wall, H, path.frame_wh) for H in Hs]
+    sample = set(_register._texture_sample(len(frames), texture_sample))
+    dull = 7 if texture_sample >= len(frames) else next(i for i in range(1, len(frames)) if i not in sample)
+    f = frames[dull].astype(np.float32)
+    frames[dull] = np.clip(f.mean() + 0.1 * (f - f.mean()) + rng.normal(0, 0.6, f.shape), 0, 255).astype(np.uint8)
+
+    class Mem:
+        def __len__(self):
+            return len(frames)
+
+        def name(self, i):
+            return f"{i}"
+
+        def load(self, i):
+            return frames[i]
+
+    reg = register(Mem(), params=RegisterParams(focal_px=path.focal_px, texture_sample=texture_sample))
+    # THEN the whole sweep is detected the low-texture way and every frame is placed, the dull one too (it was lost)
+    assert not reg.unplaced, reg.unplaced
+    assert sum(len(g.frames) for g in reg.groups) == len(frames)
+    g = reg.groups[0]
+    near, _ = misalignment(g.H, dict(enumerate(Hs)), path.frame_wh)
+    assert near.max_px < 3.0, near
 
 
 def test_bridge_keyframes_spread_over_a_group_whose_feature_counts_tie():
