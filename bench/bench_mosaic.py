@@ -71,19 +71,22 @@ def _corner_row(name: str, focal: str, res: dict, H: dict, H_gt: dict, size, out
 WALL_PHOTO_SWEEPS = ("vt_original_train_4", "vt_original_train_29", "vt_original_train_125")
 
 
-def _wall_photo_sweep(photo: Path, folder: Path, seed: int) -> tuple[dict[int, np.ndarray], float]:
-    """A sweep built like synth_rust_sweep (512x384 frames, 5 passes of 33, 40 px steps, 260 px between passes,
-    f 618 px, tilt 2 deg, yaw 2.5 deg, scale 4 %, gain 8 %, vignetting -35 % at the corners, noise 2 DN, 15 %
-    of the frames motion-blurred, JPEG 92) over the photo's centre square at 2048 px. Returns (truth, focal)."""
-    from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame
-
-    rng = np.random.default_rng(seed)
+def wall_photo(photo: Path, side_px: int = 2048) -> np.ndarray:
+    """The photo's centre square at ``side_px`` (a wall texture)."""
     im = cv2.imread(str(photo))
     side = min(im.shape[:2])
     y0, x0 = (im.shape[0] - side) // 2, (im.shape[1] - side) // 2
-    wall = cv2.resize(im[y0:y0 + side, x0:x0 + side], (2048, 2048),
-                      interpolation=cv2.INTER_AREA if side > 2048 else cv2.INTER_LANCZOS4)
-    path = SweepPath(passes=5, per_pass=33, step_px=40, row_px=260, frame_wh=(512, 384), margin_px=100,
+    return cv2.resize(im[y0:y0 + side, x0:x0 + side], (side_px, side_px),
+                      interpolation=cv2.INTER_AREA if side > side_px else cv2.INTER_LANCZOS4)
+
+
+def render_sweep(wall: np.ndarray, folder: Path, rng: np.random.Generator, passes: int = 5, per_pass: int = 33) -> dict[int, np.ndarray]:
+    """A sweep built like synth_rust_sweep (512x384 frames, 40 px steps, 260 px between passes, f 618 px, tilt
+    2 deg, yaw 2.5 deg, scale 4 %, gain 8 %, vignetting -35 % at the corners, noise 2 DN, 15 % of the frames
+    motion-blurred, JPEG 92) over ``wall``, written to ``folder``. Returns the frame -> wall homographies."""
+    from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame
+
+    path = SweepPath(passes=passes, per_pass=per_pass, step_px=40, row_px=260, frame_wh=(512, 384), margin_px=100,
                      yaw_sigma_deg=2.5, scale_sigma=0.04, tilt_sigma_deg=2.0, focal_px=618.0)
     Hs = lawnmower_homographies(path, rng)
     yy, xx = np.mgrid[0:384, 0:512]
@@ -95,7 +98,13 @@ def _wall_photo_sweep(photo: Path, folder: Path, seed: int) -> tuple[dict[int, n
         if rng.random() < 0.15:
             f = cv2.filter2D(f, -1, np.ones((1, 5), np.float32) / 5)
         cv2.imwrite(str(folder / f"frame_{i:04d}.jpg"), f, [cv2.IMWRITE_JPEG_QUALITY, 92])
-    return dict(enumerate(Hs)), path.focal_px
+    return dict(enumerate(Hs))
+
+
+def _wall_photo_sweep(photo: Path, folder: Path, seed: int) -> tuple[dict[int, np.ndarray], float]:
+    """:func:`render_sweep` (5 passes of 33) over the photo's centre square at 2048 px. Returns (truth, focal)."""
+    rng = np.random.default_rng(seed)
+    return render_sweep(wall_photo(photo), folder, rng), 618.0
 
 
 def _wall_photo_rows(data: Path) -> list[str]:

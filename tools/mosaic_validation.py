@@ -4,7 +4,7 @@ with the focal length given and self-calibrated; corner error after one similari
 
     python tools/mosaic_validation.py [--data ../shared/data] [--work /tmp/mosaic_val] [--only NAME,...]
 
-The sweeps (the benchmark's own rows use walls/ photos _4, _29, _125 and the shared synthetic
+The sweeps (``bench_mosaic.render_sweep``; the benchmark's own rows use walls/ photos _4, _29, _125 and the shared synthetic
 sweeps, none of them here):
 
 - eight walls/ photos (130, 143, 173, 196, 210, 257, 62, 87), the photo's centre square at
@@ -23,7 +23,6 @@ import argparse
 import json
 import resource
 import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -36,7 +35,7 @@ from inspect_pipe.mosaic import RegisterParams  # noqa: E402
 from inspect_pipe.mosaic._io import FolderSource  # noqa: E402
 from inspect_pipe.mosaic._register import register  # noqa: E402
 from inspect_pipe.mosaic.metrics import corner_error  # noqa: E402
-from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame  # noqa: E402
+from bench.bench_mosaic import render_sweep, wall_photo  # noqa: E402
 
 FOCAL_PX = 618.0
 PHOTO_SWEEPS = [(n, 5 + k, 2048, 5, 33) for k, n in enumerate((130, 143, 173, 196, 210, 257, 62, 87))] + [
@@ -44,32 +43,6 @@ PHOTO_SWEEPS = [(n, 5 + k, 2048, 5, 33) for k, n in enumerate((130, 143, 173, 19
     (136, 15, 1200, 3, 16), (197, 16, 1200, 3, 16), (213, 17, 1200, 3, 16), (85, 18, 1200, 3, 16),
 ]
 TILE_SEEDS = (21, 22)
-
-
-def _render(wall: np.ndarray, folder: Path, rng: np.random.Generator, passes: int, per_pass: int) -> dict[int, np.ndarray]:
-    """bench_mosaic._wall_photo_sweep's frames (512x384, 40 px steps, 260 px between passes, tilt 2 deg,
-    yaw 2.5 deg, scale 4 %, gain 8 %, vignetting -35 %, noise 2 DN, 15 % motion-blurred, JPEG 92)."""
-    path = SweepPath(passes=passes, per_pass=per_pass, step_px=40, row_px=260, frame_wh=(512, 384), margin_px=100,
-                     yaw_sigma_deg=2.5, scale_sigma=0.04, tilt_sigma_deg=2.0, focal_px=FOCAL_PX)
-    Hs = lawnmower_homographies(path, rng)
-    yy, xx = np.mgrid[0:384, 0:512]
-    vig = (1 - 0.35 * ((xx - 256) ** 2 + (yy - 192) ** 2) / (256 ** 2 + 192 ** 2))[..., None]
-    folder.mkdir(parents=True, exist_ok=True)
-    for i, H in enumerate(Hs):
-        f = render_frame(wall, H, (512, 384)).astype(np.float32) * vig * rng.normal(1, 0.08)
-        f = np.clip(f + rng.normal(0, 2, f.shape), 0, 255).astype(np.uint8)
-        if rng.random() < 0.15:
-            f = cv2.filter2D(f, -1, np.ones((1, 5), np.float32) / 5)
-        cv2.imwrite(str(folder / f"frame_{i:04d}.jpg"), f, [cv2.IMWRITE_JPEG_QUALITY, 92])
-    return dict(enumerate(Hs))
-
-
-def _photo_wall(photo: Path, side_px: int) -> np.ndarray:
-    im = cv2.imread(str(photo))
-    side = min(im.shape[:2])
-    y0, x0 = (im.shape[0] - side) // 2, (im.shape[1] - side) // 2
-    return cv2.resize(im[y0:y0 + side, x0:x0 + side], (side_px, side_px),
-                      interpolation=cv2.INTER_AREA if side > side_px else cv2.INTER_LANCZOS4)
 
 
 def _tile_wall(data: Path, rng: np.random.Generator) -> np.ndarray:
@@ -82,7 +55,7 @@ def _tile_wall(data: Path, rng: np.random.Generator) -> np.ndarray:
 def sweeps(data: Path, work: Path) -> dict[str, tuple[Path, dict[int, np.ndarray]]]:
     """Render every validation sweep once into ``work`` (kept: a second call reads the truth back)."""
     out = {}
-    specs = [(f"photo_{n}_s{seed}", seed, lambda n=n, px=px: _photo_wall(data / "walls" / f"vt_original_train_{n}.jpeg", px),
+    specs = [(f"photo_{n}_s{seed}", seed, lambda n=n, px=px: wall_photo(data / "walls" / f"vt_original_train_{n}.jpeg", px),
               passes, per) for n, seed, px, passes, per in PHOTO_SWEEPS]
     specs += [(f"crackforest_tiles_s{seed}", seed, None, 5, 33) for seed in TILE_SEEDS]
     for name, seed, make_wall, passes, per in specs:
@@ -91,7 +64,7 @@ def sweeps(data: Path, work: Path) -> dict[str, tuple[Path, dict[int, np.ndarray
         if not truth.is_file():
             rng = np.random.default_rng(seed)
             wall = make_wall() if make_wall else _tile_wall(data, rng)
-            H = _render(wall, folder / "frames", rng, passes, per)
+            H = render_sweep(wall, folder / "frames", rng, passes, per)
             truth.write_text(json.dumps({str(k): v.tolist() for k, v in H.items()}))
         out[name] = (folder / "frames", {int(k): np.array(v) for k, v in json.loads(truth.read_text()).items()})
     return out

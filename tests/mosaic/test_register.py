@@ -63,6 +63,22 @@ def test_without_focal_length_gauge_keeps_mean_frame_scale(synthetic_sweep):
     assert abs(np.mean(scales) - 1.0) < 0.01  # mosaic px = mean frame px: it neither shrinks nor grows
 
 
+class _Frames:
+    """A frame source over images in memory."""
+
+    def __init__(self, frames: list[np.ndarray]) -> None:
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def name(self, i: int) -> str:
+        return f"{i}"
+
+    def load(self, i: int) -> np.ndarray:
+        return self.frames[i]
+
+
 def test_slow_sweep_aligns_keyframes_and_attaches_the_rest():
     # GIVEN a slow sweep (3 px between frames, 1 % of the diagonal) over a synthetic wall
     from inspect_pipe.mosaic.synthetic import SweepPath, lawnmower_homographies, render_frame, textured_wall
@@ -73,17 +89,7 @@ def test_slow_sweep_aligns_keyframes_and_attaches_the_rest():
     Hs = lawnmower_homographies(path, rng)
     frames = [render_frame(wall, H, path.frame_wh) for H in Hs]
 
-    class Mem:
-        def __len__(self):
-            return len(frames)
-
-        def name(self, i):
-            return f"{i}"
-
-        def load(self, i):
-            return frames[i]
-
-    reg = register(Mem(), params=RegisterParams(focal_px=path.focal_px))
+    reg = register(_Frames(frames), params=RegisterParams(focal_px=path.focal_px))
     # THEN every frame is placed, but only a fraction went through global alignment
     g = reg.groups[0]
     assert len(g.frames) == len(Hs) and not reg.unplaced
@@ -150,17 +156,7 @@ def test_one_frame_too_dull_for_the_normal_detector_switches_the_sweep(texture_s
     f = frames[dull].astype(np.float32)
     frames[dull] = np.clip(f.mean() + 0.1 * (f - f.mean()) + rng.normal(0, 0.6, f.shape), 0, 255).astype(np.uint8)
 
-    class Mem:
-        def __len__(self):
-            return len(frames)
-
-        def name(self, i):
-            return f"{i}"
-
-        def load(self, i):
-            return frames[i]
-
-    reg = register(Mem(), params=RegisterParams(focal_px=path.focal_px, texture_sample=texture_sample))
+    reg = register(_Frames(frames), params=RegisterParams(focal_px=path.focal_px, texture_sample=texture_sample))
     # THEN the whole sweep is detected the low-texture way and every frame is placed, the dull one too (it was lost)
     assert not reg.unplaced, reg.unplaced
     assert sum(len(g.frames) for g in reg.groups) == len(frames)
