@@ -318,7 +318,7 @@ class MAVStateUpdater:
         def stale(r: RangeReading | None) -> bool:
             return r is None or now - r.stamp_s > p.sonar_timeout_s
 
-        closing = {name: self._closing_now(name, est) for name in self._range_rates}
+        closing = {name: None if rate is None else -rate for name, rate in self._range_rates.items()}
 
         front = self.front.value if _fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m) else None
         left, right = at_now(m.left_sonar, est.vy_m_s), at_now(m.right_sonar, -est.vy_m_s)
@@ -485,25 +485,6 @@ class MAVStateUpdater:
             if r is not None and r.range_m is not None and self._range_stuck[name].check(r.stamp_s, (r.range_m,), (speed,)):
                 drop[f"{name}_sonar"] = None
         return dataclasses.replace(m, **drop) if drop else m
-
-    def _closing_now(self, name: str, est: StateEstimate) -> float | None:
-        """How fast the sector's range closes now (m/s), or None. Its range rate is the slope of the
-        last ``window_s`` of samples: the closing speed at their mean stamp less the sonar's latency.
-        It is brought to now by the change of the speed along the sensor's axis since then, as the
-        ranges themselves are brought to now: braking face-on towards a wall, the lagging slope
-        closed up to 0.1 m/s faster than the speed, which read as a surface oblique to the beam, and
-        an inside corner was taken for a wall across it (the vehicle backed out of the corner it was
-        asked to slide along: fresh seed 113, e1814, kept as a regression)."""
-        rate = self._range_rates[name]
-        if rate is None:
-            return None
-        t_mid = self._slopes[name].t_mid
-        then = None if t_mid is None else self._speed_at(t_mid - self.p.sonar_latency_s)
-        if then is None:
-            return -rate
-        axis, sign = {"front": (0, 1.0), "left": (1, 1.0), "right": (1, -1.0)}[name]
-        now = (est.vx_m_s, est.vy_m_s)
-        return -rate + sign * (now[axis] - then[axis])
 
     def _oblique_walls(
         self, m: Measurements, est: StateEstimate, closing: dict[str, float | None],

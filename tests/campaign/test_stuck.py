@@ -13,19 +13,14 @@ from inspect_pipe.campaign.run import fly_episode
 
 REGRESSIONS = Path(__file__).resolve().parents[2] / "scenarios" / "regressions"
 
-# (campaign seed, episode, regression file, honest simulator)
-CASES = [
-    (1, 182, "campaign_weak_thrust_stuck_e182.yaml", False),
-    (1, 15, "campaign_escape_from_wall_e15.yaml", False),
-    # braking face-on into a corner, the lagging range rate read as an oblique wall across it (fresh seed 113)
-    (113, 1814, "campaign_s113_e01814_wall_push.yaml", True),
-]
+# (campaign seed, episode, regression file)
+CASES = [(1, 182, "campaign_weak_thrust_stuck_e182.yaml"), (1, 15, "campaign_escape_from_wall_e15.yaml")]
 
 
-@pytest.mark.parametrize("seed,index,fname,honest", CASES, ids=[c[2] for c in CASES])
-def test_escape_from_the_wall_makes_progress(seed, index, fname, honest):
+@pytest.mark.parametrize("seed,index,fname", CASES, ids=[c[2] for c in CASES])
+def test_escape_from_the_wall_makes_progress(seed, index, fname):
     assert (REGRESSIONS / fname).is_file()  # the episode kept as a scenario (test_regressions checks it)
-    r = fly_episode(generate_episode(seed, index, honest_faults=honest), "ours")
+    r = fly_episode(generate_episode(seed, index, honest_faults=False), "ours")
     assert not r.collided
     assert r.escapes_blocked == 0  # the escape is possible, so "not stuck" is a real verdict
     assert not r.stuck
