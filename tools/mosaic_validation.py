@@ -82,6 +82,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated sweep names")
     args = ap.parse_args(argv)
     only = {s for s in args.only.split(",") if s}
+    needed = [args.data / "walls", args.data / "defects" / "crackforest" / "image_unlabeled"]
+    missing = [str(p) for p in needed if not p.is_dir()]
+    if missing:
+        print(f"error: {missing[0]}: not found (give the shared data folder with --data)", file=sys.stderr)
+        return 2
     print("| sweep | focal length | placed | groups | corner error median / max px | focal found | model | CPU |")
     print("|---|---|---|---|---|---|---|---|")
     for name, (frames, truth) in sweeps(args.data, args.work).items():
