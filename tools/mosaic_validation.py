@@ -23,6 +23,7 @@ import argparse
 import json
 import resource
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -32,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from inspect_pipe.mosaic import RegisterParams  # noqa: E402
+from inspect_pipe.mosaic._align import AlignParams  # noqa: E402
 from inspect_pipe.mosaic._io import FolderSource  # noqa: E402
 from inspect_pipe.mosaic._register import register  # noqa: E402
 from inspect_pipe.mosaic.metrics import corner_error  # noqa: E402
@@ -80,7 +82,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--work", type=Path, default=Path("/tmp/mosaic_val"))
     ap.add_argument("--only", default="", help="comma-separated sweep names")
+    ap.add_argument("--focal", choices=("both", "given", "self"), default="both", help="focal length given, self-calibrated or both")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a RegisterParams field to change (number), e.g. --set low_texture_side_px=512, --set align.pose_max_nfev=100")
     args = ap.parse_args(argv)
+    overrides, align = {}, {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        group, name = (align, key.removeprefix("align.")) if key.startswith("align.") else (overrides, key)
+        base = AlignParams() if group is align else RegisterParams()
+        if name not in type(base).__dataclass_fields__ or not value:
+            print(f"error: --set {item}: not NAME=VALUE with a RegisterParams (or align.AlignParams) field", file=sys.stderr)
+            return 2
+        group[name] = type(getattr(base, name))(float(value))
+    if align:
+        overrides["align"] = replace(AlignParams(), **align)
+    focals = {"both": (FOCAL_PX, None), "given": (FOCAL_PX,), "self": (None,)}[args.focal]
     only = {s for s in args.only.split(",") if s}
     needed = [args.data / "walls", args.data / "defects" / "crackforest" / "image_unlabeled"]
     missing = [str(p) for p in needed if not p.is_dir()]
@@ -92,9 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, (frames, truth) in sweeps(args.data, args.work).items():
         if only and name not in only:
             continue
-        for focal in (FOCAL_PX, None):
+        for focal in focals:
             c0 = _cpu_s()
-            reg = register(FolderSource(frames), params=RegisterParams(focal_px=focal))
+            reg = register(FolderSource(frames), params=RegisterParams(focal_px=focal, **overrides))
             cpu = _cpu_s() - c0
             g = reg.groups[0]
             ce = corner_error({f: g.H[f] for f in g.frames}, truth, reg.size_wh)

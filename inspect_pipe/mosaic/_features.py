@@ -59,6 +59,7 @@ def detect_features(
     max_side_px: int = 2048,
     scale: float = 1.0,
     low_texture_features: int = 150,
+    low_texture_side_px: int = 640,
     mode: str = "auto",
 ) -> Features:
     """Detect and describe keypoints on an 8-bit grey image (H, W); ``xy`` in its pixels.
@@ -75,10 +76,10 @@ def detect_features(
     whole sweep then shares one preprocessing, so frames at a texture boundary still match).
     """
     if mode == "low_texture":
-        return _detect_scaled(gray, detector, max_features, 640, sensitive=True)
+        return _detect_scaled(gray, detector, max_features, low_texture_side_px, sensitive=True)
     feats = _detect_scaled(gray, detector, max_features, int(min(max_side_px, round(scale * max(gray.shape[:2])))), sensitive=False)
     if mode == "auto" and len(feats) < low_texture_features:
-        again = _detect_scaled(gray, detector, max_features, 640, sensitive=True)
+        again = _detect_scaled(gray, detector, max_features, low_texture_side_px, sensitive=True)
         if len(again) > len(feats):
             feats = again
     return feats

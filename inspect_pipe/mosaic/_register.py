@@ -66,6 +66,7 @@ class RegisterParams:
     min_overlap: float = 0.15
     candidates_per_frame: int = 2
     low_texture_features: int = 150  # fewer keypoints than this make a frame texture-poor
+    low_texture_side_px: int = 640  # texture-poor frames are detected equalised at most this long
     low_texture_share: float = 0.1  # this share of texture-poor frames switches the sweep to low-texture detection
     texture_sample: int = 64  # evenly spaced frames detected first to estimate that share (each frame then decoded once)
     texture_quick: int = 8  # the sample's first, evenly spaced: when half of them are texture-poor, so is the sweep
@@ -327,7 +328,8 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
     done = 0
 
     def detect(gray: np.ndarray, mode: str) -> Features:
-        return detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale, mode=mode)
+        return detect_features(gray, detector=params.detector, max_features=params.max_features, scale=params.detect_scale,
+                               low_texture_side_px=params.low_texture_side_px, mode=mode)
 
     def extract(i: int, mode: str, keep: bool = False):
         why = prior.skip_reason(i) if prior is not None else ""

@@ -141,3 +141,56 @@ def test_self_calibration_from_a_drifted_chain_restarts_from_the_fixed_focal_fit
     ce = corner_error(res.H, dict(zip(frames, z["H_true"])), size)
     assert ce.n_frames == len(frames)
     assert ce.median_px < 1.0 and ce.max_px < 4.0, ce
+
+
+def _global_step_input(name: str):
+    from pathlib import Path
+
+    z = np.load(Path(__file__).parents[1] / "fixtures" / "mosaic" / name)
+    frames = [int(f) for f in z["frames"]]
+    corr = Correspondences(z["fi"].astype(int), z["fj"].astype(int), z["p"].astype(float), z["q"].astype(float))
+    pair_H = {(int(a), int(b)): h for (a, b), h in zip(z["pairs"], z["pair_H"])}
+    return frames, dict(zip(frames, z["H0"])), corr, pair_H, tuple(int(v) for v in z["size"]), dict(zip(frames, z["H_true"]))
+
+
+def test_frames_at_a_pass_end_held_by_two_pairs_are_placed_within_the_goal_with_the_focal_length():
+    # GIVEN the global step's input of a validation sweep over a texture-poor wall (fixture README): the frames at the
+    # end of its third pass are held by two or three neighbour pairs only, with 40 correspondences a pair
+    from inspect_pipe.mosaic._align import align_group
+
+    frames, H0, corr, pair_H, size, truth = _global_step_input("pass_end_vt173.npz")
+    res = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H)
+    assert res.model == "pose", res.note
+    # THEN every corner is within the goal with the focal length given (12 correspondences a pair and at most 40
+    # evaluations left the pass's last frame 36.8 px off: the adjustment stopped unconverged and was accepted on its RMS)
+    ce = corner_error(res.H, truth, size)
+    assert ce.n_frames == len(frames)
+    assert ce.median_px <= 0.5 and ce.max_px <= 2.0, ce
+
+
+def test_a_pose_fit_stopped_by_its_evaluation_cap_leaves_weakly_held_frames_off():
+    # GIVEN the same input with the earlier settings: 12 correspondences a pair and at most 40 evaluations
+    from dataclasses import replace
+
+    from inspect_pipe.mosaic._align import AlignParams, align_group
+
+    frames, H0, corr, pair_H, size, truth = _global_step_input("pass_end_vt173.npz")
+    early = replace(AlignParams(), pose_points_per_pair=12, pose_max_nfev=40)
+    res = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H, params=early)
+    # THEN the fit passes its RMS test and is kept, yet frames at the pass's end are far off: why the cap was raised
+    assert res.model == "pose"
+    assert corner_error(res.H, truth, size).max_px > 3.0
+
+
+def test_self_calibration_starts_from_the_pair_seed_where_the_chain_has_no_focal_minimum():
+    # GIVEN the same sweep without its focal length: the metric-rectification scan of its drifted chain is lowest at
+    # the end of the plausible range (154 px, true 618); self-calibration from there ran off to 153 px, the pose
+    # model was rejected and free homographies ended 21.9 / 153.8 px off (tools/mosaic_validation.py: 0.53 / 3.21 px
+    # from the pair seed; the whole fit is too slow for the suite)
+    from inspect_pipe.mosaic._align import AlignParams, initial_focal
+
+    frames, H0, corr, pair_H, size, truth = _global_step_input("pass_end_vt173.npz")
+    lo, hi = (r * max(size) for r in AlignParams().focal_range)
+    f0 = initial_focal(H0, size, (size[0] / 2, size[1] / 2), pair_H, AlignParams())
+    # THEN the start is inside the plausible range, not at its end
+    assert lo * 1.01 <= f0 <= hi / 1.01
