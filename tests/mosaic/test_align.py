@@ -54,6 +54,39 @@ def test_thin_keeps_at_most_k_per_pair_spread_over_the_list():
     assert c.p[c.fi == 0][0, 0] == 0 and c.p[c.fi == 0][-1, 0] == 78  # first and last of pair (0, 1)
 
 
+def test_the_sparse_jacobian_matches_dense_differences_with_the_gauge_frame_left_out():
+    # GIVEN a pose problem of 3 frames, 2 pairs of 5 correspondences, focal length and k1 free, frame 1 the gauge
+    from inspect_pipe.mosaic._align import _Problem
+
+    rng = np.random.default_rng(3)
+    fi, fj = np.r_[np.zeros(5, int), np.ones(5, int)], np.r_[np.ones(5, int), np.full(5, 2)]
+    p, q = rng.uniform(0, 500, (10, 2)), rng.uniform(0, 500, (10, 2))
+    corr = Correspondences(fi, fj, p, q)
+    cam = Camera(600.0, 256.0, 192.0, 0.01, 0.0)
+    R0 = np.stack([np.eye(3)] * 3)
+    P = np.c_[rng.normal(0, 0.02, (3, 3)), rng.normal(0, 0.3, (3, 2)), 1 + rng.normal(0, 0.05, 3)]
+    free = np.ones(3 * 6 + 2, bool)
+    free[[8, 9, 10, 11]] = False
+    prob = _Problem("pose", [0, 1, 2], fi, fj, corr, R0, cam, ("f", "k1"), free)
+    full0 = np.r_[P.ravel(), cam.f, cam.k1]
+    J = prob.jacobian(P, cam, prob.residuals(P, cam)).toarray()
+
+    # THEN every column equals the residuals' central difference in that free unknown
+    def r(x):
+        Px, camx = prob.unpack(x, full0)
+        return prob.residuals(Px, camx).ravel()
+
+    x0 = full0[free]
+    dense = np.empty((40, free.sum()))
+    for c in range(free.sum()):
+        h = 1e-6 * max(1.0, abs(x0[c]))
+        e = np.zeros_like(x0)
+        e[c] = h
+        dense[:, c] = (r(x0 + e) - r(x0 - e)) / (2 * h)
+    assert J.shape == dense.shape == (40, 16)
+    assert np.allclose(J, dense, rtol=1e-3, atol=1e-3 * np.abs(dense).max())
+
+
 @pytest.mark.parametrize("focal", [True, False], ids=["focal", "self-calibrated"])
 def test_pose_model_places_the_sweep_on_the_wall(synthetic_sweep, focal):
     # GIVEN a 3-pass sweep with yaw, scale and tilt jitter and exact ground truth
