@@ -75,6 +75,11 @@ class AlignParams:
     # sweeps (tools/mosaic_validation.py), focal length given, corner error max over 2 px on 3 of them with 12 a pair
     # (up to 36.8 px where the adjustment stopped unconverged), 0.44-1.74 px on all 16 with 40 a pair
     pose_points_per_pair: int = 40
+    # ...within this many correspondences in all (a long sweep's adjustment grows with them: the 2,000-frame sweep's
+    # 7,540 pairs at 40 a pair took 2.62 GB and 222 s for pairs and global step, at 12 1.95 GB and 90 s), but never
+    # fewer than pose_points_min a pair: 40 a pair up to 1,500 pairs (about 400 frames)
+    pose_points_budget: int = 60_000
+    pose_points_min: int = 12
     # self-calibration converges on this many a pair, then the poses are polished on pose_points_per_pair at the
     # intrinsics found (with the focal length given, one fit on all is cheaper). Validation sweep 173 self-calibrated:
     # 12: 4.16 px max (goal 4), 20: 3.83, all 40 in one fit: 3.21 at about twice the CPU
@@ -691,7 +696,10 @@ def fit_pose_model(
     from ._rectify import rectify
 
     fixed = replace(params, max_nfev=params.pose_max_nfev)
-    thinned = thin(corr, params.pose_points_per_pair)
+    n_pairs = len(np.unique(corr.fi.astype(np.int64) * 1_000_003 + corr.fj))
+    per_pair = min(params.pose_points_per_pair, max(params.pose_points_min, params.pose_points_budget // max(n_pairs, 1)))
+    params = replace(params, pose_points_per_pair=per_pair)
+    thinned = thin(corr, per_pair)
     cam = Camera(f0, *principal)
     H_wall, _ = rectify(H0 if self_calibrate and not from_fixed_focal else _start(H0, corr, size_wh), size_wh, f0, principal)
     # self-calibration converges on fewer correspondences first (with the focal length given one fit on all is cheaper)

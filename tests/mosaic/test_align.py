@@ -227,3 +227,26 @@ def test_self_calibration_starts_from_the_pair_seed_where_the_chain_has_no_focal
     f0 = initial_focal(H0, size, (size[0] / 2, size[1] / 2), pair_H, AlignParams())
     # THEN the start is inside the plausible range, not at its end
     assert lo * 1.01 <= f0 <= hi / 1.01
+
+
+def test_the_pose_adjustment_keeps_its_correspondences_within_the_budget(monkeypatch):
+    # GIVEN 100 pairs of 40 correspondences and a budget of 1,500 correspondences, at least 12 a pair
+    import inspect_pipe.mosaic._align as align
+
+    seen = []
+
+    def spy(H, corr, cam, **kw):
+        seen.append(np.bincount(corr.fi * 1000 + corr.fj).max())
+        return H, cam, 1, True
+
+    monkeypatch.setattr(align, "adjust_poses", spy)
+    rng = np.random.default_rng(0)
+    fi = np.repeat(np.arange(100), 40)
+    corr = Correspondences(fi, fi + 1, rng.uniform(0, 500, (4000, 2)), rng.uniform(0, 500, (4000, 2)))
+    H0 = {f: np.eye(3) for f in range(101)}
+    for budget, per_pair in ((1_500, 15), (400, 12), (100_000, 40)):
+        seen.clear()
+        align.fit_pose_model(H0, corr, (512, 384), 600.0, (256, 192), self_calibrate=False,
+                             params=AlignParams(pose_points_budget=budget))
+        # THEN each pair keeps budget / pairs, never fewer than 12 nor more than 40
+        assert seen == [per_pair], (budget, seen)
