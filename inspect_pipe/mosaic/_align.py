@@ -72,8 +72,8 @@ class AlignParams:
     pose_slack_px: float = 0.05
     focal_range: tuple[float, float] = (0.3, 6.0)  # plausible focal lengths, in frame larger sides
     # correspondences a pair in the pose adjustment, spread over the overlap (6 unknowns a frame). 16 validation
-    # sweeps (tools/mosaic_validation.py), focal length given, corner error max over 2 px on 3 of them with 12 a pair
-    # (up to 36.8 px where the adjustment stopped unconverged), 0.44-1.74 px on all 16 with 40 a pair
+    # sweeps (tools/mosaic_validation.py), focal length given: with 12 a pair the max corner error was over 2 px on
+    # 173 (36.8 px, the adjustment stopped unconverged; 4.9 converged) and 62 (2.24); with 40, 0.44-1.74 px on all 16
     pose_points_per_pair: int = 40
     # ...within this many correspondences in all (a long sweep's adjustment grows with them: the 2,000-frame sweep's
     # 7,540 pairs at 40 a pair took 2.62 GB and 222 s for pairs and global step, at 12 1.95 GB and 90 s), but never
