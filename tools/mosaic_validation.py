@@ -3,6 +3,10 @@ textures the benchmark does not use, each with its exact frame-to-wall homograph
 with the focal length given and self-calibrated; corner error after one similarity.
 
     python tools/mosaic_validation.py [--data ../shared/data] [--work /tmp/mosaic_val] [--only NAME,...]
+                                      [--focal both|given|self] [--set NAME=VALUE ...]
+
+``--set`` changes a numeric RegisterParams field (``--set low_texture_side_px=320``) or an AlignParams
+field (``--set align.pose_points_per_pair=12``), to score a variant on these sweeps.
 
 The sweeps (``bench_mosaic.render_sweep``; the benchmark's own rows use walls/ photos _4, _29, _125 and the shared synthetic
 sweeps, none of them here):
@@ -94,7 +98,14 @@ def main(argv: list[str] | None = None) -> int:
         if name not in type(base).__dataclass_fields__ or not value:
             print(f"error: --set {item}: not NAME=VALUE with a RegisterParams (or align.AlignParams) field", file=sys.stderr)
             return 2
-        group[name] = type(getattr(base, name))(float(value))
+        kind = type(getattr(base, name))
+        try:
+            if kind not in (int, float, bool):
+                raise ValueError
+            group[name] = kind(float(value))
+        except ValueError:
+            print(f"error: --set {item}: {name} takes a number here", file=sys.stderr)
+            return 2
     if align:
         overrides["align"] = replace(AlignParams(), **align)
     focals = {"both": (FOCAL_PX, None), "given": (FOCAL_PX,), "self": (None,)}[args.focal]

@@ -572,9 +572,14 @@ def _spread(points: np.ndarray, k: int) -> np.ndarray:
     return np.sort(np.array(pick))
 
 
+def _pair_keys(corr: Correspondences) -> np.ndarray:
+    """One integer per correspondence naming its pair (i, j)."""
+    return corr.fi.astype(np.int64) * 1_000_003 + corr.fj
+
+
 def thin(corr: Correspondences, per_pair: int) -> Correspondences:
     """At most ``per_pair`` correspondences of each pair, spread over the pair's overlap (:func:`_spread`)."""
-    keys = corr.fi.astype(np.int64) * 1_000_003 + corr.fj
+    keys = _pair_keys(corr)
     order = np.argsort(keys, kind="stable")
     _, start, count = np.unique(keys[order], return_index=True, return_counts=True)
     pick = np.concatenate([order[s + _spread(corr.p[order[s:s + c]], per_pair)]
@@ -695,10 +700,10 @@ def fit_pose_model(
     the fixed-focal fit 0.52 px in 9 + 15)."""
     from ._rectify import rectify
 
-    fixed = replace(params, max_nfev=params.pose_max_nfev)
-    n_pairs = len(np.unique(corr.fi.astype(np.int64) * 1_000_003 + corr.fj))
+    n_pairs = len(np.unique(_pair_keys(corr)))
     per_pair = min(params.pose_points_per_pair, max(params.pose_points_min, params.pose_points_budget // max(n_pairs, 1)))
     params = replace(params, pose_points_per_pair=per_pair)
+    fixed = replace(params, max_nfev=params.pose_max_nfev)
     thinned = thin(corr, per_pair)
     cam = Camera(f0, *principal)
     H_wall, _ = rectify(H0 if self_calibrate and not from_fixed_focal else _start(H0, corr, size_wh), size_wh, f0, principal)
