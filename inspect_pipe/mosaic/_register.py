@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections import Counter, defaultdict
 from concurrent.futures import ThreadPoolExecutor
@@ -293,6 +294,22 @@ class _Extracted:
     thumbnails: dict[int, np.ndarray]
 
 
+@contextlib.contextmanager
+def _opencv_threads_per_worker(workers: int):
+    """OpenCV's own threads held to one while ``workers`` (> 1) threads of ours call it: SIFT's
+    pyramid and the matching otherwise start a pool per call, and the two pools oversubscribe the
+    cores (the 752x480 scaling sweep's features: 64 -> 59 ms a frame on 2 cores, the same
+    keypoints). Restored on exit; a no-op for one worker."""
+    before = cv2.getNumThreads()
+    if workers > 1:
+        cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        if workers > 1:
+            cv2.setNumThreads(before)
+
+
 def _texture_sample(n: int, k: int) -> list[int]:
     """Up to ``k`` evenly spaced frames (all of them when there are no more than ``k``)."""
     return list(range(n)) if n <= k else sorted({int(round(t)) for t in np.linspace(0, n - 1, k)})
@@ -383,7 +400,7 @@ def extract_features(source: FrameSource, prior, params: RegisterParams, workers
     sample = _texture_sample(n, params.texture_sample)
     quick = [sample[k] for k in _texture_sample(len(sample), params.texture_quick)]
     in_sample = set(quick)
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    with _opencv_threads_per_worker(workers), ThreadPoolExecutor(max_workers=workers) as pool:
         take(pool.map(lambda i: extract(i, "normal", keep=True), quick))
         poor = sum(len(f) < params.low_texture_features for f in feats.values())
         if not (len(feats) >= 2 and 2 * poor >= len(feats)):  # not clearly texture-poor: the whole sample
@@ -433,7 +450,7 @@ class _Pairs:
         priors = priors or {}
         self.tried.update(pairs)
         before = len(self.accepted)
-        with ThreadPoolExecutor(max_workers=self.workers) as pool:
+        with _opencv_threads_per_worker(self.workers), ThreadPoolExecutor(max_workers=self.workers) as pool:
             for k, res in enumerate(pool.map(lambda p: self.one(p, priors), pairs)):
                 if self.progress:
                     self.progress("matching", k + 1, len(pairs))
