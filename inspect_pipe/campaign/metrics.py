@@ -19,8 +19,9 @@ Definitions (all distances from the vehicle's centre unless said otherwise):
 * stuck: an escape the operator asked for (sideways out of a corner or along a wall) made less
   than 0.3 m of progress, with no fault active meanwhile. An escape that the hold's geometry
   does not allow is not judged: if straight along its direction, within its required progress,
-  the vehicle's centre would come closer than where it started and within ``STOP_TOLERANCE_M``
-  (0.05 m) of the stop line or inside it, or more than that closer than where it started, a shield that honours the stop
+  the vehicle's centre would come closer to any wall or box than where it started and within
+  ``STOP_TOLERANCE_M`` (0.05 m) of the stop line or inside it, or more than that closer to the
+  nearest surface than where it started, a shield that honours the stop
   line cannot be judged on it (e.g. the stick pushes into the end of a pillar 1.07 m away; or,
   from 1.31 m out of a corner's side wall, 0.3 m of progress would end 1 cm from the line, and a
   vehicle that stops 5 cm short of the line made 0.26 m); such escapes are counted as
@@ -245,12 +246,19 @@ class EpisodeMonitor:
                     st["drift"] = max(st["drift"], math.hypot(p[0] - r0[0], p[1] - r0[1]))
 
     def _escape_possible(self, x, y, z, e) -> bool:
-        d0 = self.geo.side_distance(x, y, z)
+        """Each surface judged on its own: the one the escape approaches need not be the nearest at
+        its start (from 0.94 m of the wall ahead, 0.3 m towards a pillar's face 1.25 m to the side
+        ends 0.95 m from it; judged on the nearest surface alone, that escape was "possible" and a
+        vehicle stopping at the pillar's 1 m line was stuck: campaign seed 127 e1033)."""
+        d0s = self.geo.surface_distances(x, y, z)
+        d0 = min(d0s)
         n = max(1, int(math.ceil(e.min_progress_m / 0.05)))
         for k in range(1, n + 1):
             s = e.min_progress_m * k / n
-            d = self.geo.side_distance(x + s * e.direction[0], y + s * e.direction[1], z)
-            if d < d0 - STOP_TOLERANCE_M or (d < d0 - 1e-3 and d < STOP_LINE_M + STOP_TOLERANCE_M):
+            ds = self.geo.surface_distances(x + s * e.direction[0], y + s * e.direction[1], z)
+            if min(ds) < d0 - STOP_TOLERANCE_M:
+                return False
+            if any(d < d_start - 1e-3 and d < STOP_LINE_M + STOP_TOLERANCE_M for d, d_start in zip(ds, d0s)):
                 return False
         return True
 

@@ -74,5 +74,19 @@ class HoldGeometry:
             d = min(d, math.sqrt(dx * dx + dy * dy + dz * dz))
         return d
 
+    def surface_distances(self, x: float, y: float, z: float) -> list[float]:
+        """The distance to each wall and each box, one by one (the four walls, then the boxes in
+        order; ``inf`` for a box whose top is straight below): :meth:`side_distance` is their minimum."""
+        out = [self.length - x, x, self.half_w - y, y + self.half_w]
+        for (x0, y0, z0), (x1, y1, z1) in self.boxes:
+            dx = max(x0 - x, 0.0, x - x1)
+            dy = max(y0 - y, 0.0, y - y1)
+            if dx == 0.0 and dy == 0.0 and z >= z1:
+                out.append(math.inf)
+                continue
+            dz = max(z0 - z, 0.0, z - z1)
+            out.append(math.sqrt(dx * dx + dy * dy + dz * dz))
+        return out
+
     def floor_distance(self, z: float) -> float:
         return z

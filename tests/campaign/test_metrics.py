@@ -123,6 +123,25 @@ def test_an_escape_into_a_pillar_within_the_stop_line_is_not_judged():
     assert m._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (1.0, 0.0), 0.3))
 
 
+def test_an_escape_towards_a_pillar_is_judged_by_the_pillar_not_by_the_nearer_wall_ahead():
+    from inspect_pipe.campaign.generator import Escape
+
+    # GIVEN a vehicle 0.94 m from the wall ahead (+x, the nearest surface) and 1.25 m from a
+    # pillar's face to its right (-y), asked for 0.3 m along -y (campaign seed 127 e1033)
+    def possible(side_m):
+        spec = _spec()
+        spec.doc["world"]["boxes"] = [
+            {"min": [5.94, -3.0, 0.0], "max": [7.0, 3.0, 8.0]},
+            {"min": [4.0, -3.0, 0.0], "max": [5.94, -side_m, 8.0]},
+        ]
+        return _monitor(spec)._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (0.0, -1.0), 0.3))
+
+    # THEN it would end 0.95 m from the pillar, inside its stop line: not judged, although the
+    # nearest surface (the wall ahead) stays where it was; from 1.40 m it is judged
+    assert not possible(1.25)
+    assert possible(1.40)
+
+
 def test_an_escape_ending_within_five_centimetres_of_the_stop_line_is_not_judged():
     from inspect_pipe.campaign.generator import Escape
 
