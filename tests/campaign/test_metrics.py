@@ -123,42 +123,35 @@ def test_an_escape_into_a_pillar_within_the_stop_line_is_not_judged():
     assert m._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (1.0, 0.0), 0.3))
 
 
-def test_an_escape_towards_a_pillar_is_judged_by_the_pillar_not_by_the_nearer_wall_ahead():
+def _escape_sideways_possible(ahead_m: float, side_box_x: tuple[float, float], side_m: float) -> bool:
+    """From (5, 0) at 1.5 m, 0.3 m along -y, with a wall ``ahead_m`` ahead (+x) and a box whose
+    +y face is ``side_m`` to the right, spanning ``side_box_x`` along the hold."""
     from inspect_pipe.campaign.generator import Escape
 
-    # GIVEN a vehicle 0.94 m from the wall ahead (+x, the nearest surface) and 1.25 m from a
-    # pillar's face to its right (-y), asked for 0.3 m along -y (campaign seed 127 e1033)
-    def possible(side_m):
-        spec = _spec()
-        spec.doc["world"]["boxes"] = [
-            {"min": [5.94, -3.0, 0.0], "max": [7.0, 3.0, 8.0]},
-            {"min": [4.0, -3.0, 0.0], "max": [5.94, -side_m, 8.0]},
-        ]
-        return _monitor(spec)._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (0.0, -1.0), 0.3))
+    spec = _spec()
+    spec.doc["world"]["boxes"] = [
+        {"min": [5.0 + ahead_m, -3.0, 0.0], "max": [7.0, 3.0, 8.0]},
+        {"min": [side_box_x[0], -3.0, 0.0], "max": [side_box_x[1], -side_m, 8.0]},
+    ]
+    return _monitor(spec)._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (0.0, -1.0), 0.3))
 
+
+def test_an_escape_towards_a_pillar_is_judged_by_the_pillar_not_by_the_nearer_wall_ahead():
+    # GIVEN a vehicle 0.94 m from the wall ahead (the nearest surface) and 1.25 m from a pillar's
+    # face to its right, asked for 0.3 m towards it (campaign seed 127 e1033)
     # THEN it would end 0.95 m from the pillar, inside its stop line: not judged, although the
     # nearest surface (the wall ahead) stays where it was; from 1.40 m it is judged
-    assert not possible(1.25)
-    assert possible(1.40)
+    assert not _escape_sideways_possible(0.94, (4.0, 5.94), 1.25)
+    assert _escape_sideways_possible(0.94, (4.0, 5.94), 1.40)
 
 
 def test_an_escape_ending_within_five_centimetres_of_the_stop_line_is_not_judged():
-    from inspect_pipe.campaign.generator import Escape
-
-    # GIVEN a vehicle in a corner, 1.05 m from the wall ahead (+x) and 1.31 m or 1.40 m from the
-    # side wall (-y), asked for 0.3 m of progress along -y (seed 2, episode 1041)
-    def possible(side_m):
-        spec = _spec()
-        spec.doc["world"]["boxes"] = [
-            {"min": [6.05, -3.0, 0.0], "max": [7.0, 3.0, 8.0]},
-            {"min": [3.0, -3.0, 0.0], "max": [7.0, -side_m, 8.0]},
-        ]
-        return _monitor(spec)._escape_possible(5.0, 0.0, 1.5, Escape(1.0, 3.0, (0.0, -1.0), 0.3))
-
+    # GIVEN a vehicle in a corner, 1.05 m from the wall ahead and 1.31 m or 1.40 m from the side
+    # wall, asked for 0.3 m of progress along it (seed 2, episode 1041)
     # THEN from 1.31 m the escape would end 1 cm from the line: a shield stopping 5 cm short of
     # it cannot make 0.3 m, so it is not judged; from 1.40 m it is
-    assert not possible(1.31)
-    assert possible(1.40)
+    assert not _escape_sideways_possible(1.05, (3.0, 7.0), 1.31)
+    assert _escape_sideways_possible(1.05, (3.0, 7.0), 1.40)
 
 
 def test_link_loss_hover_is_when_the_push_stops_being_obeyed_not_a_repulsion_across_it():
