@@ -96,11 +96,15 @@ class FlightMachine:
             elif est.mode >= 0 and est.height_m >= p.takeoff_end_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
                 self._go(FlightState.FLYING, now)
         elif s is FlightState.FLYING or s is FlightState.DESCENDING:
-            # No measured height (alarm modes; mode 3 integrates it): the floor's jolt is the
-            # touchdown. A vehicle that drifted into front-wall range during an alarm descent
-            # reached the floor in mode 3 and sat there "flying".
+            # No measured height or vertical speed (alarm modes, whose vertical speed is the
+            # filled-in '+val.'; mode 3 integrates the height): the floor's jolt is the touchdown.
+            # A vehicle that drifted into front-wall range during an alarm descent reached the
+            # floor in mode 3 and sat there "flying". Mode -1 still measures the height (the
+            # TeraRanger): a jolt above descend_end_height_m is not the floor (a vibration fault's
+            # first spikes at 3.5 m ramped the thrust down in mid-air: campaign seed 137 e145).
             unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT
-            if unmeasured and ev.impact:
+            high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.descend_end_height_m
+            if unmeasured and ev.impact and not high:
                 self._go(FlightState.LANDING, now)
                 self.touchdown_s = now
             elif s is FlightState.FLYING and ev.land_requested:

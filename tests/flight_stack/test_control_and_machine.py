@@ -102,6 +102,19 @@ def test_alarm_tof_below_half_a_metre_goes_to_landing():
     assert _run(m, 1.0, _est(0.45, mode=EstimationMode.ALARM_TOF)) is FlightState.LANDING
 
 
+def test_a_jolt_in_mode_minus_one_is_a_touchdown_only_near_the_floor_the_teraranger_measures():
+    # GIVEN mode -1 (the TeraRanger's height, the vertical speed filled in) WHEN the IMU jolts
+    # upwards at 3.5 m (a vibration fault's first spikes; campaign seed 137 e145 fell from there)
+    m = FlightMachine()
+    m.state = FlightState.FLYING
+    assert _run(m, 1.0, _est(3.5, mode=EstimationMode.ALARM_TOF), impact=True) is FlightState.FLYING
+    assert m.touchdown_s is None
+    # THEN it flies on; in mode -2, with no height measured, the jolt is still the floor
+    m2 = FlightMachine()
+    m2.state = FlightState.FLYING
+    assert _run(m2, 1.0, _est(3.5, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.LANDING
+
+
 def test_drag_trim_comes_from_the_command_and_vanishes_with_it():
     # GIVEN a vehicle tracking 0.5 m/s exactly: the tilt is the drag feed-forward, not integral
     p = ControlParams()
