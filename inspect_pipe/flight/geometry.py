@@ -63,20 +63,12 @@ class HoldGeometry:
 
     def side_distance(self, x: float, y: float, z: float) -> float:
         """Like :meth:`wall_distance`, but a box whose top is straight below the centre counts as
-        floor (a surface to land on), not as an obstacle."""
-        d = min(self.length - x, x, self.half_w - y, y + self.half_w)
-        for (x0, y0, z0), (x1, y1, z1) in self.boxes:
-            dx = max(x0 - x, 0.0, x - x1)
-            dy = max(y0 - y, 0.0, y - y1)
-            if dx == 0.0 and dy == 0.0 and z >= z1:
-                continue
-            dz = max(z0 - z, 0.0, z - z1)
-            d = min(d, math.sqrt(dx * dx + dy * dy + dz * dz))
-        return d
+        floor (a surface to land on), not as an obstacle: the nearest of :meth:`surface_distances`."""
+        return min(self.surface_distances(x, y, z))
 
     def surface_distances(self, x: float, y: float, z: float) -> list[float]:
         """The distance to each wall and each box, one by one (the four walls, then the boxes in
-        order; ``inf`` for a box whose top is straight below): :meth:`side_distance` is their minimum."""
+        order; ``inf`` for a box whose top is straight below, which counts as floor)."""
         out = [self.length - x, x, self.half_w - y, y + self.half_w]
         for (x0, y0, z0), (x1, y1, z1) in self.boxes:
             dx = max(x0 - x, 0.0, x - x1)
