@@ -35,7 +35,7 @@ from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
 SONAR_FLOOR_M = 0.32
 TOF_FLOOR_M = 0.25
 
-__all__ = ["MAVStateUpdater", "SensorStatus", "select_mode"]
+__all__ = ["MAVStateUpdater", "SensorStatus", "select_mode", "without_stale_imu"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +58,21 @@ def select_mode(status: SensorStatus) -> EstimationMode:
 
 def _fresh_range(r: RangeReading | None, now: float, timeout: float, max_range: float) -> bool:
     return r is not None and now - r.stamp_s <= timeout and r.range_m is not None and r.range_m <= max_range
+
+
+def without_stale_imu(m: Measurements, now: float, timeout_s: float) -> Measurements:
+    """``m`` with its IMU reading dropped when that is older than ``timeout_s``.
+
+    A link that stops delivering telemetry leaves its last IMU reading in place; integrated tick
+    after tick, that one sample's acceleration is a speed and a position the vehicle never had
+    (companion over MAVLink, 1 s telemetry loss: a vibration sample of +0.4 m/s^2 carried the
+    speed estimate from 0.53 to 0.87 m/s while the autopilot braked to 0.13, and the obstacle
+    memory, placed by that odometry, held the wall 0.7 m nearer than the sonar heard it after
+    the link came back: the vehicle stopped 1.65 m from the wall instead of 1 m)."""
+    imu = m.imu
+    if imu is None or now - imu.stamp_s <= timeout_s:
+        return m
+    return dataclasses.replace(m, imu=None)
 
 
 class MAVStateUpdater:
@@ -108,6 +123,9 @@ class MAVStateUpdater:
         self._v_hist: deque[tuple[float, float, float]] = deque()  # (t, observed vx, vy) over the last slope window
         self._yaw_hist: list[tuple[float, float]] = []  # (t, heading) over the last slope window
         self._reading_stamps: dict[str, float] = {}  # per use of a sensor, the stamp of its reading last used
+        self._had_imu = False  # an IMU reading has come (the first tick of a simulation has none)
+        self._imu_silent = False  # the IMU went silent after it had spoken (see ``update``)
+        self._imu_dt = 0.0  # time since the last IMU reading integrated into the speed observers
 
     @property
     def imu_bias(self) -> tuple[float, float, float]:
@@ -148,7 +166,22 @@ class MAVStateUpdater:
 
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
         p = self.p
-        m = self._drop_stuck_sonars(m)
+        m = self._drop_stuck_sonars(without_stale_imu(m, now, p.imu_timeout_s))
+        if m.imu is None:
+            # Nothing measures the vehicle's motion: the odometry cannot place what the sonars
+            # heard before, so the memory forgets it (the sonars refill it within a reading)...
+            self.memory.reset()
+            self._imu_silent = self._had_imu
+        elif self._imu_silent:
+            # ...and the speeds carried through the silence are unknown by whatever the vehicle
+            # did meanwhile: restarted with the initial variance, the first flow or range rate is
+            # taken in full, not gated out against a confident stale speed.
+            for o in self.obs:
+                o.restart(o.v)
+            self._imu_silent = False
+            self._imu_dt = 0.0  # the silence is not integrated with the first reading after it
+        else:
+            self._had_imu = True
         self._feed_slopes(now, m)
         if m.imu is not None and m.imu.yaw_rad is not None:
             self._yaw = m.imu.yaw_rad
@@ -168,8 +201,13 @@ class MAVStateUpdater:
         fflow = m.front_flow if status.front_px else None
         if imu is not None and (bflow is not None or fflow is not None):
             bflow, fflow = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, bflow, fflow)
-        if imu is not None:
-            self._predict(ax, ay, az, dt)
+        # Each IMU reading is integrated once, over the time since the last one integrated: a
+        # link that delivers readings out of step with the ticks (or stops) repeats the last one,
+        # and that sample's acceleration is no longer what the vehicle does.
+        self._imu_dt += dt
+        if imu is not None and self._new_reading("imu", imu.stamp_s):
+            self._predict(ax, ay, az, min(self._imu_dt, p.imu_timeout_s))
+            self._imu_dt = 0.0
         self._restart_after_stuck_flow()
 
         # Front range (vx in modes 2 and 3, front clearance always). Flow speed, when there is

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.behaviors import MAVBehaviors
 from inspect_pipe.flight_stack.control import FlightController
-from inspect_pipe.flight_stack.estimation import MAVStateUpdater
+from inspect_pipe.flight_stack.estimation import MAVStateUpdater, without_stale_imu
 from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState, ImpactDetector
 from inspect_pipe.flight_stack.messages import (
     HOVER,
@@ -66,6 +66,9 @@ class OnboardStack:
         dt = 1.0 / p.control.tick_hz if self._last_now is None else max(now_s - self._last_now, 0.0)
         self._last_now = now_s
 
+        # A silent IMU (telemetry lost) is no IMU, for the estimate, the impact test and the
+        # disturbance observers alike.
+        measurements = without_stale_imu(measurements, now_s, p.estimation.imu_timeout_s)
         est, clearance = self.state_updater.update(now_s, measurements)
         machine = self.machine
         airborne = machine.state in (FlightState.FLYING, FlightState.DESCENDING)

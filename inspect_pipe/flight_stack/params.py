@@ -33,6 +33,9 @@ class EstimationParams:
     flow_timeout_s: float = param(0.08, 0.01, 1.0, "s", "flow older than this is N/A")
     sonar_timeout_s: float = param(0.35, 0.05, 2.0, "s", "sonar older than this is N/A (10 Hz)")
     tof_timeout_s: float = param(0.1, 0.01, 1.0, "s", "TeraRanger older than this is N/A")
+    imu_timeout_s: float = param(
+        0.25, 0.02, 2.0, "s", "IMU older than this is N/A: nothing to integrate, the obstacle memory forgets (telemetry lost)"
+    )
     sonar_max_range_m: float = param(4.9, 1.0, 7.0, "m", "HRLV-EZ4 usable range")
     tof_max_range_m: float = param(13.8, 1.0, 14.0, "m", "TeraRanger One usable range")
     sonar_latency_s: float = param(0.05, 0.0, 0.5, "s", "HRLV-EZ4 reading delay (as simulated; docs/flight.md, Simulator)")

@@ -107,6 +107,8 @@ def test_every_parameter_is_declared_with_unit_bounds_and_a_reason():
     from inspect_pipe.flight_stack.params import describe
 
     rows = describe()
-    assert len(rows) <= 92  # issue 19 aims at half of 98 (101 before session 10); at least no more than today
+    # Issue 19 aims at half of 98 (101 before session 10); at least no more than today. 93 since
+    # session 18: imu_timeout_s (a silent IMU was integrated as if it still spoke, see without_stale_imu).
+    assert len(rows) <= 93
     for name, value, lo, hi, unit, reason in rows:
         assert unit and lo <= value <= hi and len(reason) > 10, name

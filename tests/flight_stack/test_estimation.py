@@ -567,3 +567,35 @@ def test_in_the_sonars_clamp_zone_the_teraranger_measures_the_height():
     # AND with no range sensor below, no height floor
     est, _ = upd.update(6.0, _meas(5.0))
     assert est.mode == EstimationMode.ALARM_NONE and est.height_floor_m is None
+
+
+def test_a_silent_imu_is_not_integrated_and_the_memory_forgets_what_its_odometry_placed():
+    """The companion over MAVLink when the telemetry stops: the link keeps its last IMU reading."""
+
+    def meas(t, vx, front_m):
+        m = _meas(t, vx=vx, vy=0.0, vz=0.0, front_range=front_m)
+        return dataclasses.replace(m, imu=ImuReading.level(t, 0.0, 0.0, 0.0, 0.0))  # heading known: memory on
+
+    # GIVEN a vehicle flying at 0.5 m/s towards a wall 3 m ahead, its obstacle memory filled
+    upd = MAVStateUpdater()
+    for k in range(100):
+        t = 1.0 + 0.02 * k
+        upd.update(t, meas(t, 0.5, 3.0 - 0.5 * (t - 1.0)))
+    t_lost, front_lost = t, 3.0 - 0.5 * (t - 1.0)
+    # WHEN for 1 s nothing new arrives and the last IMU reading (a +0.4 m/s^2 vibration sample)
+    # stays in place, while the autopilot brakes to 0.13 m/s and covers 0.3 m
+    stale = Measurements(imu=ImuReading.level(t_lost, 0.4, 0.0, 0.0, 0.0))
+    for k in range(1, 51):
+        est, _ = upd.update(t_lost + 0.02 * k, stale)
+    # THEN the speed was not carried up on that one sample (0.9 m/s if it were)
+    assert est.vx_m_s < 0.52
+    # WHEN the telemetry comes back
+    t_back = t_lost + 1.0
+    for k in range(1, 16):
+        t = t_back + 0.02 * k
+        front = front_lost - 0.3 - 0.13 * (t - t_back)
+        est, clearance = upd.update(t, meas(t, 0.13, front))
+    # THEN the clearance is the wall the sonar hears, not one remembered where the drifted odometry
+    # put it (0.4 m nearer), and the speed is the flow's
+    assert clearance.front_m == pytest.approx(front, abs=0.03)
+    assert est.vx_m_s == pytest.approx(0.13, abs=0.03)
