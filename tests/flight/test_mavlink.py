@@ -328,4 +328,14 @@ def test_end_to_end_two_processes_px4_link_loss_hovers(tmp_path: Path) -> None:
     assert recs[-1]["landed_state"] == "on_ground" and not recs[-1]["armed"]
     comp_recs = [json.loads(line) for line in comp_log.read_text().splitlines()[1:]]
     assert {"taking_off", "flying", "descending", "landing"} <= {r["fsm"] for r in comp_recs}
+    # After the loss the companion's front clearance is the wall's true distance, not one that its
+    # odometry drifted during the silence (it held the wall 0.7 m near: a stale IMU integrated).
+    offset = moving[0]["t"] - next(r["t"] for r in comp_recs if r["cmd"]["vx"] > 0.3)  # simulator clock - companion's
+    errors = []
+    for r in comp_recs:
+        t_sim = r["t"] + offset
+        if 6.5 <= t_sim <= 11.0 and r["dist"]["front"] is not None:
+            truth = min(recs, key=lambda s: abs(s["t"] - t_sim))["dist_true"]["front"]
+            errors.append(abs(r["dist"]["front"] - truth))
+    assert errors and max(errors) < 0.1, f"front clearance off the truth by {max(errors, default=0):.2f} m after the link loss"
     assert any("speed attenuated" in f or "stop line" in f for r in comp_recs for f in r["feedback"])
