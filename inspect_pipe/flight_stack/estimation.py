@@ -114,8 +114,13 @@ class MAVStateUpdater:
         # Horizontal sonars: stuck once the vehicle's own speed along the axis says the range
         # should have changed.
         self._range_stuck = {
-            k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m) for k in ("front", "left", "right")
+            k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m)
+            for k in ("front", "left", "right", "bottom_sonar", "bottom_tof")
         }
+        # Per downward range sensor: the vertical speed carried by the IMU alone since its reading
+        # last changed (the height estimate it feeds cannot judge it: see _drop_stuck_sonars).
+        self._vz_free: dict[str, float] = {"bottom_sonar": 0.0, "bottom_tof": 0.0}
+        self._last_down_range: dict[str, float | None] = {"bottom_sonar": None, "bottom_tof": None}
         self._was_stuck = {"bottom": False, "front": False}
         self._newly_stuck = {"bottom": False, "front": False}
         self._last_now: float | None = None
@@ -166,7 +171,7 @@ class MAVStateUpdater:
 
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
         p = self.p
-        m = self._drop_stuck_sonars(without_stale_imu(m, now, p.imu_timeout_s))
+        m = self._drop_stuck_sonars(now, without_stale_imu(m, now, p.imu_timeout_s))
         if m.imu is None:
             # Nothing measures the vehicle's motion: the odometry cannot place what the sonars
             # heard before, so the memory forgets it (the sonars refill it within a reading)...
@@ -511,17 +516,40 @@ class MAVStateUpdater:
             return True
         return abs(math.remainder(hist[-1][1] - hist[0][1], math.tau)) > self.p.alarm_slope_max_turn_rad
 
-    def _drop_stuck_sonars(self, m: Measurements) -> Measurements:
-        """A horizontal sonar repeating its range bit for bit while the vehicle has moved along
-        its axis by more than ``sonar_stuck_travel_m`` is stuck: its readings count as missing (a
-        silent sector: no user motion into it) until they change. Safety campaign: a left sonar
-        stuck at 1.65 m while the operator pushed at 0.77 m/s towards the wall; the stop came when
-        it recovered, 0.15 m inside the line."""
+    def _drop_stuck_sonars(self, now: float, m: Measurements) -> Measurements:
+        """A range sensor repeating its range bit for bit while the vehicle has moved along its
+        axis by more than ``sonar_stuck_travel_m`` is stuck: its readings count as missing until
+        they change. Horizontal sonars: a silent sector, no user motion into it (safety campaign:
+        a left sonar stuck at 1.65 m while the operator pushed at 0.77 m/s towards the wall; the
+        stop came when it recovered, 0.15 m inside the line).
+
+        The downward ones (bottom sonar, TeraRanger) are judged by the vertical speed the IMU
+        alone carries from the moment their reading last changed: the height estimate they feed
+        follows a stuck reading, and so does its rate. In mode -1 a TeraRanger stuck at 2.45 m
+        pinned the height, the estimate's vertical speed stayed at the alarm descent's "+val."
+        while the vehicle fell, the speed loop kept lowering the thrust, and the vehicle hit the
+        floor at 1.47 m/s (found by hand, 2026-11-28; the campaign draws one stuck sensor at a
+        time, and with a flow alive the TeraRanger does not measure the height). Dropped, the
+        TeraRanger leaves mode -2 and its alarm descent. A reading at the sensor's clamp (the
+        sonar's 0.30 m, the TeraRanger's 0.20 m: on the floor, in a take-off) repeats by design."""
         vx, vy = self.obs[0].v, self.obs[1].v
         drop = {}
         for name, r, speed in (("front", m.front_sonar, vx), ("left", m.left_sonar, vy), ("right", m.right_sonar, -vy)):
             if r is not None and r.range_m is not None and self._range_stuck[name].check(r.stamp_s, (r.range_m,), (speed,)):
                 drop[f"{name}_sonar"] = None
+        dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
+        az = m.imu.heading_accel()[2] - self.obs[2].b if m.imu is not None else 0.0
+        for name, r, clamp_m in (("bottom_sonar", m.bottom_sonar, SONAR_FLOOR_M), ("bottom_tof", m.bottom_tof, TOF_FLOOR_M)):
+            if r is None or r.range_m is None or r.range_m <= clamp_m:
+                self._last_down_range[name] = None
+                continue
+            if r.range_m != self._last_down_range[name]:
+                self._vz_free[name] = self.obs[2].v  # the estimate while the reading still moved
+                self._last_down_range[name] = r.range_m
+            else:
+                self._vz_free[name] += az * dt
+            if self._range_stuck[name].check(r.stamp_s, (r.range_m,), (self._vz_free[name],)):
+                drop[name] = None
         return dataclasses.replace(m, **drop) if drop else m
 
     def _oblique_walls(

@@ -158,6 +158,20 @@ def test_alarm_mode_minus_two_descends_and_lands_without_crashing(fly):
     assert f.result.status is ExitStatus.COMPLETED
 
 
+def test_a_stuck_teraranger_in_mode_minus_one_is_dropped_and_the_vehicle_lands_softly(fly):
+    # GIVEN a hover at about 2.5 m on the TeraRanger alone (mode -1) when it sticks at t=10 s
+    f = fly("alarm_stuck_teraranger")
+    assert f.at(9.8).out.estimate.mode == EstimationMode.ALARM_TOF
+    stuck = f.between(10.0, 34.0)
+    # THEN within 1.5 s the repeated reading no longer counts (mode -2: no height reference)
+    first = next(r for r in stuck if r.out.estimate.mode == EstimationMode.ALARM_NONE)
+    assert first.t <= 11.5
+    # AND the vehicle descends at the alarm's pace, never falling (1.47 m/s into the floor before)
+    assert max(-r.vel_true[2] for r in stuck) < 0.5
+    assert f.result.final_fsm is FlightState.LANDED
+    assert f.result.status is ExitStatus.COMPLETED
+
+
 def test_floor_box_overflight_keeps_altitude_while_height_steps_with_the_floor(fly):
     # GIVEN a flight at 1.5 m over a 1 m box
     f = fly("floor_box_overflight")

@@ -214,7 +214,8 @@ def test_a_near_zero_flow_repeated_while_the_imu_accelerates_is_stuck():
     modes = []
     for k in range(20):
         t = 1.0 + 0.02 * k
-        m = _meas(t)
+        h = 1.5 - 0.75 * (t - 1.0) ** 2  # the ranges below see the descent the IMU says (they are not stuck)
+        m = _meas(t, height=h)
         m = dataclasses.replace(m, front_flow=FrontFlow(t, 0.0, 0.03, 200), imu=ImuReading.level(t, 0.0, 0.0, -1.5))
         modes.append(upd.update(t, m)[0].mode)
     # THEN once the IMU's speed change passes 0.15 m/s the front flow is dropped: mode 0
@@ -599,3 +600,42 @@ def test_a_silent_imu_is_not_integrated_and_the_memory_forgets_what_its_odometry
     # put it (0.4 m nearer), and the speed is the flow's
     assert clearance.front_m == pytest.approx(front, abs=0.03)
     assert est.vx_m_s == pytest.approx(0.13, abs=0.03)
+
+
+def test_a_bottom_sonar_at_its_clamp_repeats_by_design_and_is_not_judged_stuck():
+    # GIVEN a take-off from rest (1.5 m/s^2 up to 0.5 m/s): the bottom sonar reads its 0.30 m
+    # clamp over the first 0.3 m (bit for bit) while the IMU and the TeraRanger say it climbs
+    upd = MAVStateUpdater()
+    modes = []
+    for k in range(50):
+        t = 1.0 + 0.02 * k
+        s = t - 1.0
+        accel = 1.5 if s < 1.0 / 3.0 else 0.0
+        v = min(1.5 * s, 0.5)
+        h = 0.08 + (0.75 * s * s if s < 1.0 / 3.0 else 1.0 / 12.0 + 0.5 * (s - 1.0 / 3.0))
+        m = dataclasses.replace(_meas(t, height=h, vx=0.0, vy=0.0, vz=v), bottom_sonar=RangeReading(t, max(0.30, h)),
+                                imu=ImuReading.level(t, 0.0, 0.0, accel))
+        modes.append(upd.update(t, m)[0].mode)
+    assert max(0.30, h) > 0.30  # the flight left the clamp
+    # THEN the sonar is not dropped: the bottom flow stays usable (modes 0/1 need its sonar)
+    assert all(mode == EstimationMode.BOTTOM_FRONT for mode in modes[1:])
+
+
+def test_a_teraranger_repeating_its_reading_while_the_imu_says_the_vehicle_falls_is_dropped():
+    # GIVEN mode -1 (no flow, the TeraRanger alone below) at 2 m, hovering on live readings
+    upd = MAVStateUpdater()
+    for k in range(50):
+        t = 1.0 + 0.02 * k
+        m = Measurements(bottom_tof=RangeReading(t, 2.0 + 0.002 * math.sin(50.0 * t)), imu=ImuReading.level(t, 0.0, 0.0, 0.0))
+        est, _ = upd.update(t, m)
+    assert est.mode == EstimationMode.ALARM_TOF
+    # WHEN the reading sticks while the IMU says the vehicle accelerates downwards at 0.5 m/s^2
+    stuck_at = None
+    for k in range(1, 60):
+        t = 2.0 + 0.02 * k
+        m = Measurements(bottom_tof=RangeReading(t, 2.0), imu=ImuReading.level(t, 0.0, 0.0, -0.5))
+        est, _ = upd.update(t, m)
+        if stuck_at is None and est.mode == EstimationMode.ALARM_NONE:
+            stuck_at = t - 2.0
+    # THEN it counts as missing once the IMU's descent passes 0.1 m (0.63 s at 0.5 m/s^2): mode -2
+    assert stuck_at is not None and stuck_at <= 0.8
