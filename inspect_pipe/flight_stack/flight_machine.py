@@ -72,6 +72,7 @@ class FlightMachine:
         self.touchdown_s: float | None = None
         self._ground_s = 0.0  # how long the landing has looked like the ground
         self._bounced = False  # a touchdown of this landing was cancelled: the vehicle bounced
+        self._measured: tuple[float, float] | None = None  # (height, time) last measured in flight
 
     def _go(self, state: FlightState, now: float) -> None:
         self.state = state
@@ -102,8 +103,18 @@ class FlightMachine:
             # floor in mode 3 and sat there "flying". Mode -1 still measures the height (the
             # TeraRanger): a jolt above descend_end_height_m is not the floor (a vibration fault's
             # first spikes at 3.5 m ramped the thrust down in mid-air: campaign seed 137 e145).
+            # Mode -2 and mode 3 have no height to test a jolt by, but the last measured one
+            # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` from that
+            # height could reach the floor is not the floor (every range sensor lost at 2.06 m,
+            # a vibration fault's first spikes 0.7 s later: the ramp-down began there and the
+            # vehicle fell at 4 m/s; found by pairing fault classes by hand, 2026-11-28).
             unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT
+            if est.mode == EstimationMode.ALARM_TOF or not unmeasured:
+                self._measured = (est.height_m, now)
             high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.descend_end_height_m
+            if unmeasured and not high and self._measured is not None:
+                h, t = self._measured
+                high = now - t < (h - p.descend_end_height_m) / p.fastest_descent_m_s
             if unmeasured and ev.impact and not high:
                 self._go(FlightState.LANDING, now)
                 self.touchdown_s = now

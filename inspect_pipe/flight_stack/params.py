@@ -231,6 +231,10 @@ class FlightMachineParams:
         5.0, 0.0, 20.0, "sigma", "... and beyond this many RMS of the IMU's recent unexplained lift in flight (vibration)"
     )
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
+    fastest_descent_m_s: float = param(
+        1.2, 0.3, 5.0, "m/s", "no height measured: a jolt is the floor only once a descent this fast could have reached it "
+        "from the last measured height (twice the largest vertical speed command)"
+    )
 
 
 @dataclass(frozen=True)

@@ -172,6 +172,17 @@ def test_a_stuck_teraranger_in_mode_minus_one_is_dropped_and_the_vehicle_lands_s
     assert f.result.status is ExitStatus.COMPLETED
 
 
+def test_vibration_spikes_in_mode_minus_two_high_above_the_floor_are_not_a_touchdown(fly):
+    # GIVEN every range sensor lost at about 2 m (mode -2) and a vibration fault 0.5 s later
+    f = fly("alarm_none_vibration")
+    blind = f.between(9.2, 12.0)
+    assert all(r.out.estimate.mode == EstimationMode.ALARM_NONE for r in blind)
+    # THEN no touchdown is taken from the spikes: no landing, no fall (4 m/s before)
+    assert all(r.out.fsm is FlightState.FLYING for r in f.between(9.0, 16.0))
+    assert max(-r.vel_true[2] for r in f.between(9.0, 16.0)) < 0.6
+    assert f.result.status is ExitStatus.COMPLETED
+
+
 def test_floor_box_overflight_keeps_altitude_while_height_steps_with_the_floor(fly):
     # GIVEN a flight at 1.5 m over a 1 m box
     f = fly("floor_box_overflight")

@@ -108,7 +108,8 @@ def test_every_parameter_is_declared_with_unit_bounds_and_a_reason():
 
     rows = describe()
     # Issue 19 aims at half of 98 (101 before session 10); at least no more than today. 93 since
-    # session 18: imu_timeout_s (a silent IMU was integrated as if it still spoke, see without_stale_imu).
-    assert len(rows) <= 93
+    # session 18: imu_timeout_s (a silent IMU was integrated as if it still spoke, see without_stale_imu)
+    # and fastest_descent_m_s (a jolt with no height measured, see FlightMachine.update): 94.
+    assert len(rows) <= 94
     for name, value, lo, hi, unit, reason in rows:
         assert unit and lo <= value <= hi and len(reason) > 10, name
