@@ -252,8 +252,10 @@ class StuckCheck:
     station keeping accelerate the vehicle to 2 m/s into a wall; a front flow stuck at +0.03 m/s
     vertical during a landing let the descent speed up to 1.5 m/s into the floor."""
 
-    def __init__(self, samples: int, change_limit: float) -> None:
+    def __init__(self, samples: int, change_limit: float, max_gap_s: float = 0.3) -> None:
         self.samples, self.change_limit = samples, change_limit
+        #: a reading after a longer silence starts the judgement afresh (see :meth:`check`)
+        self.max_gap_s = max_gap_s
         self._stamp: float | None = None
         self._value: tuple[float, ...] | None = None
         self._repeats = 0
@@ -273,7 +275,14 @@ class StuckCheck:
         needed 0.22 m/s of real change to be found, and the vehicle crept 0.11 m inside the stop
         line meanwhile (safety campaign, seed 1 e124)."""
         if stamp_s != self._stamp:
-            if value == self._value and self._stamp is not None:
+            # Across a silence the rates are unknown: one sample's rate times the silence is no
+            # integral (a bottom PX4Flow dropped for 3 s came back stuck at its last value; its
+            # rate, the IMU's braking at that moment, times 3 s put the "likely" speed at -1.4
+            # m/s while the vehicle flew at +0.1, and the restart from it flew the vehicle into
+            # the wall at 1 m/s: fault-pair probe, 2026-11-28). The first reading after it is a
+            # new start; repeats of it are judged from there, against the estimate then.
+            silence = self._stamp is not None and stamp_s - self._stamp > self.max_gap_s
+            if value == self._value and self._stamp is not None and not silence:
                 self._repeats += 1
                 if self._repeats == 1:  # the estimate has seen the first reading: the true value then
                     ref = reference or (None,) * len(value)

@@ -10,7 +10,7 @@ import statistics
 import pytest
 
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater, SensorStatus, select_mode
-from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver
+from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.messages import (
     BottomFlow,
     EstimationMode,
@@ -639,3 +639,17 @@ def test_a_teraranger_repeating_its_reading_while_the_imu_says_the_vehicle_falls
             stuck_at = t - 2.0
     # THEN it counts as missing once the IMU's descent passes 0.1 m (0.63 s at 0.5 m/s^2): mode -2
     assert stuck_at is not None and stuck_at <= 0.8
+
+
+def test_a_reading_back_from_a_silence_unchanged_is_judged_afresh_not_across_the_silence():
+    # GIVEN a flow reading 0.496 m/s, then 3 s of silence (a dropout), then the same value again
+    # and again (it came back stuck) while the IMU says the vehicle brakes at 0.6 m/s^2 and the
+    # filtered speed (from another sensor) is 0.075 m/s
+    check = StuckCheck(5, 0.15)
+    for k in range(10):
+        check.check(9.0 + 0.01 * k, (0.496,), (0.0,), reference=(0.5,))
+    stuck = [check.check(12.035 + 0.02 * k, (0.496,), (-0.6,), reference=(0.075,)) for k in range(8)]
+    # THEN it is found stuck within its 5 samples, and what it would read now is about the
+    # filtered speed then less the braking since (not 0.5 - 0.6 x 3 s = -1.3 m/s)
+    assert stuck[4] and stuck[-1]
+    assert check.likely_value()[0] == pytest.approx(0.075 - 0.6 * 0.02 * 7, abs=0.02)
