@@ -171,7 +171,11 @@ class MAVStateUpdater:
 
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
         p = self.p
-        m = self._drop_stuck_sonars(now, without_stale_imu(m, now, p.imu_timeout_s))
+        m = without_stale_imu(m, now, p.imu_timeout_s)
+        dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
+        self._last_now = now
+        ax, ay, az = m.imu.heading_accel() if m.imu is not None else (0.0, 0.0, 0.0)
+        m = self._drop_stuck_sonars(m, az, dt)
         if m.imu is None:
             # Nothing measures the vehicle's motion: the odometry cannot place what the sonars
             # heard before, so the memory forgets it (the sonars refill it within a reading)...
@@ -197,11 +201,6 @@ class MAVStateUpdater:
         status = self.status(now, m)
         mode = select_mode(status)
         imu = m.imu
-        ax = imu.ax_m_s2 if imu is not None else 0.0
-        ay = imu.ay_m_s2 if imu is not None else 0.0
-        dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
-        self._last_now = now
-        az = imu.az_m_s2 if imu is not None else 0.0
         bflow = m.bottom_flow if status.bottom_px else None
         fflow = m.front_flow if status.front_px else None
         if imu is not None and (bflow is not None or fflow is not None):
@@ -516,7 +515,7 @@ class MAVStateUpdater:
             return True
         return abs(math.remainder(hist[-1][1] - hist[0][1], math.tau)) > self.p.alarm_slope_max_turn_rad
 
-    def _drop_stuck_sonars(self, now: float, m: Measurements) -> Measurements:
+    def _drop_stuck_sonars(self, m: Measurements, az: float, dt: float) -> Measurements:
         """A range sensor repeating its range bit for bit while the vehicle has moved along its
         axis by more than ``sonar_stuck_travel_m`` is stuck: its readings count as missing until
         they change. Horizontal sonars: a silent sector, no user motion into it (safety campaign:
@@ -537,8 +536,7 @@ class MAVStateUpdater:
         for name, r, speed in (("front", m.front_sonar, vx), ("left", m.left_sonar, vy), ("right", m.right_sonar, -vy)):
             if r is not None and r.range_m is not None and self._range_stuck[name].check(r.stamp_s, (r.range_m,), (speed,)):
                 drop[f"{name}_sonar"] = None
-        dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
-        az = m.imu.heading_accel()[2] - self.obs[2].b if m.imu is not None else 0.0
+        az -= self.obs[2].b  # ``az``: the IMU's vertical acceleration this tick (heading frame)
         for name, r, clamp_m in (("bottom_sonar", m.bottom_sonar, SONAR_FLOOR_M), ("bottom_tof", m.bottom_tof, TOF_FLOOR_M)):
             if r is None or r.range_m is None or r.range_m <= clamp_m:
                 self._last_down_range[name] = None

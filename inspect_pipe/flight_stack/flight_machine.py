@@ -87,6 +87,13 @@ class FlightMachine:
 
     def update(self, now: float, dt: float, est: StateEstimate, ev: FlightEvents) -> FlightState:
         p, s = self.p, self.state
+        # The height last measured in flight (mode -1's TeraRanger counts; mode 3 integrates its
+        # height, mode -2 has none): what bounds a jolt where no height is measured, below.
+        unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT
+        if s is FlightState.LANDED:
+            self._measured = None
+        elif est.mode == EstimationMode.ALARM_TOF or not unmeasured:
+            self._measured = (est.height_m, now)
         if s is FlightState.LANDED:
             if ev.takeoff_pressed and not ev.land_requested:
                 self._go(FlightState.TAKING_OFF, now)
@@ -108,9 +115,6 @@ class FlightMachine:
             # height could reach the floor is not the floor (every range sensor lost at 2.06 m,
             # a vibration fault's first spikes 0.7 s later: the ramp-down began there and the
             # vehicle fell at 4 m/s; found by pairing fault classes by hand, 2026-11-28).
-            unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT
-            if est.mode == EstimationMode.ALARM_TOF or not unmeasured:
-                self._measured = (est.height_m, now)
             high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.descend_end_height_m
             if unmeasured and not high and self._measured is not None:
                 h, t = self._measured
@@ -127,7 +131,6 @@ class FlightMachine:
             # estimator says which sensor measures it: ``StateEstimate.height_floor_m``); with no
             # measured height, the sonar's.
             down_m = est.height_floor_m if est.height_floor_m is not None else SONAR_FLOOR_M
-            unmeasured = est.mode < 0 or est.mode == EstimationMode.FRONT  # no measured height
             on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
             # The time-out stands in for a touchdown the sensors cannot confirm; with a valid
             # height well above the floor, or still descending, the vehicle is not down (safety campaign: a battery sag

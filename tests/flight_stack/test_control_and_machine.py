@@ -115,6 +115,19 @@ def test_a_jolt_in_mode_minus_one_is_a_touchdown_only_near_the_floor_the_teraran
     assert _run(m2, 1.0, _est(3.5, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.LANDING
 
 
+def test_a_jolt_with_no_height_measured_is_the_floor_only_once_a_descent_could_reach_it():
+    # GIVEN a hover measured at 2.0 m until t=1.0 s, then mode -2 (every range sensor lost)
+    m = FlightMachine()
+    m.state = FlightState.FLYING
+    assert _run(m, 1.0, _est(2.0)) is FlightState.FLYING
+    # WHEN the IMU jolts 0.7 s later (a vibration fault's first spikes): no descent at 1.2 m/s
+    # covers the 1.5 m to descend_end_height_m in 0.7 s, so it is not the floor
+    assert _run(m, 1.7, _est(2.0, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.FLYING
+    # THEN a jolt after 1.25 s may be: the touchdown
+    assert _run(m, 2.3, _est(2.0, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.LANDING
+    assert m.touchdown_s == 2.3
+
+
 def test_drag_trim_comes_from_the_command_and_vanishes_with_it():
     # GIVEN a vehicle tracking 0.5 m/s exactly: the tilt is the drag feed-forward, not integral
     p = ControlParams()
