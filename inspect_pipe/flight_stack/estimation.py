@@ -270,7 +270,7 @@ class MAVStateUpdater:
             self._range_rate_speeds(now)
         vx, vy = ox.v, oy.v
         if self._yaw is not None:
-            self.memory.advance(now, vx, vy, self._yaw)
+            self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
 
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
         # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.

@@ -10,7 +10,15 @@ Frame: heading from the autopilot's attitude estimate (gyro-integrated; only cha
 over a few seconds matter, so a slow drift does no harm), position integrated from the speed
 estimate. Each fresh echo becomes a plane facing the sensor's axis at the echo's range; planes
 are binned by the direction of their normal (10 deg bins, the newest echo of a bin wins, but see the next sentence) and
-forgotten after ``keep_s`` or ``keep_travel_m`` of travel (odometry drift). A heard surface is not
+forgotten after ``keep_travel_m`` of travel (odometry drift), after ``keep_s`` of flight without a
+measured horizontal speed (the alarm modes, where the odometry drifts with the IMU's errors), or
+once the altitude has changed by more than ``body_radius_m`` since the echo (the horizontal beams
+say nothing about how far up or down a surface reaches: a floor box heard during the climb is
+not in the way of the flight above it, and the sonars at the new height hear what is). Forgotten
+after a fixed 8 s instead, a corner pillar heard 3 m ahead while hovering was gone by the time
+an inspection sweep slid sideways past it, inside the blind diagonal between two beams; a low box
+heard during the climb and kept in the front sonar's bin hid the same kind of pillar (safety
+campaign, seed 173: three sweeps along a front wall into a corner pillar). A heard surface is not
 replaced by a farther echo of its bin (by more than ``jump_m``) until the vehicle has moved sideways
 of it by the beam's half-width at its range plus ``body_radius_m``: a farther echo then means that
 the nearer surface left the beam's edge (the beam narrows as the vehicle closes in, or a gust moved it
@@ -65,6 +73,8 @@ class _Plane(NamedTuple):
     release_m: float | None  # sideways motion that lets a farther echo replace it (None: an inferred surface)
     x: float  # the odometry position when it was stored
     y: float
+    blind_s: float  # the memory's time without a measured speed when it was stored
+    z: float | None  # the altitude it was heard at
 
 
 class ObstacleMemory:
@@ -76,16 +86,24 @@ class ObstacleMemory:
         self.cos_max = math.cos(math.radians(max_angle_deg))
         self.x = self.y = 0.0  # odometry position (m)
         self.travel_m = 0.0  # path length so far
+        self.blind_s = 0.0  # time so far without a measured horizontal speed
+        self.z: float | None = None  # altitude (m), when known
         self._t: float | None = None
         self.planes: dict[int, _Plane] = {}  # by the direction of the normal
 
     def reset(self) -> None:
         self.planes.clear()
 
-    def advance(self, now: float, vx_m_s: float, vy_m_s: float, yaw_rad: float) -> None:
-        """Integrate the heading-frame speed estimate to ``now``."""
+    def advance(
+        self, now: float, vx_m_s: float, vy_m_s: float, yaw_rad: float, *, altitude_m: float | None = None, measured: bool = True
+    ) -> None:
+        """Integrate the heading-frame speed estimate to ``now``; ``measured``: a sensor measured
+        that speed (not the IMU alone); ``altitude_m``: the altitude now, when known."""
+        self.z = altitude_m
         if self._t is not None and now > self._t:
             dt = now - self._t
+            if not measured:
+                self.blind_s += dt
             c, s = math.cos(yaw_rad), math.sin(yaw_rad)
             dx, dy = (c * vx_m_s - s * vy_m_s) * dt, (s * vx_m_s + c * vy_m_s) * dt
             self.x += dx
@@ -108,10 +126,15 @@ class ObstacleMemory:
                 return  # the nearer surface left the beam's edge: still there
         keep = self.keep_s if keep_s is None else min(keep_s, self.keep_s)
         release = range_m * self.sin_beam + self.body_radius_m if keep_s is None else None  # heard, not inferred
-        self.planes[key] = _Plane(stamp_s, nx, ny, off, self.travel_m, keep, release, self.x, self.y)
+        self.planes[key] = _Plane(stamp_s, nx, ny, off, self.travel_m, keep, release, self.x, self.y, self.blind_s, self.z)
 
     def _stale(self, plane: _Plane, now: float) -> bool:
-        return now - plane.stamp_s > plane.keep_s or self.travel_m - plane.travel_m > self.keep_travel_m
+        if self.travel_m - plane.travel_m > self.keep_travel_m or self.blind_s - plane.blind_s > plane.keep_s:
+            return True
+        if plane.release_m is None:
+            return now - plane.stamp_s > plane.keep_s  # an inferred surface: kept only as long as asked
+        z, z0 = self.z, plane.z
+        return z is not None and z0 is not None and abs(z - z0) > self.body_radius_m
 
     def clearance(self, now: float, axis_rad: float, yaw_rad: float) -> float | None:
         """Smallest perpendicular distance to a remembered surface facing this body axis."""
