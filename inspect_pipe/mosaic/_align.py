@@ -687,9 +687,11 @@ def _start(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int,
 def fit_pose_model(
     H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], f0: float, principal: tuple[float, float],
     *, self_calibrate: bool, params: AlignParams, give_up_px: float | None = None, from_fixed_focal: bool = False,
+    distortion: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool]:
     """Rectify the layout with ``f0``, then bundle-adjust the pose model on a thinned set of
-    correspondences; returns (H, camera, errors of all correspondences, converged). A self-calibrated
+    correspondences; returns (H, camera, errors of all correspondences, converged). ``distortion``
+    (k1, k2) starts the camera, held fixed unless self-calibrating. A self-calibrated
     fit stalled above ``give_up_px`` stops there (:func:`_stalled`).
 
     Self-calibration starts from the chained layout ``H0``: its perspective is what finds the focal
@@ -705,7 +707,7 @@ def fit_pose_model(
     params = replace(params, pose_points_per_pair=per_pair)
     fixed = replace(params, max_nfev=params.pose_max_nfev)
     thinned = thin(corr, per_pair)
-    cam = Camera(f0, *principal)
+    cam = Camera(f0, *principal, *distortion)
     H_wall, _ = rectify(H0 if self_calibrate and not from_fixed_focal else _start(H0, corr, size_wh), size_wh, f0, principal)
     # self-calibration converges on fewer correspondences first (with the focal length given one fit on all is cheaper)
     first = (thin(corr, params.pose_points_first) if self_calibrate and 0 < params.pose_points_first < params.pose_points_per_pair
@@ -751,6 +753,7 @@ def align_group(
     focal_px: float | None = None,
     principal_px: tuple[float, float] | None = None,
     pair_H: dict[tuple[int, int], np.ndarray] | None = None,
+    camera: Camera | None = None,
     params: AlignParams = AlignParams(),
 ) -> AlignResult:
     """Global alignment of one connected group from its initial layout ``H0`` (frame px -> mosaic px).
@@ -760,12 +763,18 @@ def align_group(
     an implausible focal length or fits the correspondences worse than ``pose_ratio`` x their own
     pair homographies' RMS + ``pose_slack_px``. A given focal length the pose model cannot fit while a
     self-calibrated one can is reported as contradicting the images. Otherwise the group keeps
-    free homographies, and ``note`` says why."""
+    free homographies, and ``note`` says why.
+
+    ``camera``, settled by an earlier alignment of the same sweep (``_register.align_groups``), replaces
+    ``focal_px`` and self-calibration: the pose model is fitted once, with it held fixed."""
     frames = sorted(H0)
     corr = corr.within(frames)
     pair_H = {k: v for k, v in (pair_H or {}).items() if k[0] in H0 and k[1] in H0}
     w, h = size_wh
     principal = tuple(principal_px) if principal_px is not None else (w / 2, h / 2)
+    distortion = (0.0, 0.0)
+    if camera is not None:
+        focal_px, principal, distortion = camera.f, (camera.cx, camera.cy), (camera.k1, camera.k2)
     side = max(w, h)
     f_lo, f_hi = params.focal_range[0] * side, params.focal_range[1] * side
     nfev = 0
@@ -777,7 +786,7 @@ def align_group(
         # (given focal length, self-calibrate, from the fixed-focal fit): the last only after a self-calibrated fit
         # that missed by less than the give-up margin (a slow start, not a scene the pose model cannot describe)
         tries = [(float(focal_px), False, False)] if focal_px else []
-        tries += [(None, True, False), (None, True, True)]
+        tries += [(None, True, False), (None, True, True)] if camera is None else []
         f_self, given_fail = None, ""
         for f0, self_cal, from_fixed in tries:
             if from_fixed and not (0 < rms_all <= give_up_px):
@@ -785,7 +794,8 @@ def align_group(
             f0 = f0 or f_self or initial_focal(H0, size_wh, principal, pair_H, params)
             f_self = f0 if self_cal else None
             H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params,
-                                             give_up_px=give_up_px, from_fixed_focal=from_fixed)
+                                             give_up_px=give_up_px, from_fixed_focal=from_fixed,
+                                             distortion=distortion)
             rms = _rms(err, params.outlier_px)
             rms_all = float(np.sqrt(np.mean(err**2))) if len(err) else 0.0  # judged on all: a fit may leave whole pairs off
             if not ok:
@@ -803,7 +813,8 @@ def align_group(
                 why = f"{why} (from the fixed-focal fit: {fail.removeprefix('the pose model ')})"
             elif not self_cal:
                 given_fail = fail
-                why = f"with the focal length {focal_px:g} px {fail}"
+                why = (f"with the focal length {focal_px:g} px {fail}" if camera is None else
+                       f"with the focal length {focal_px:.5g} px settled by the sweep's first alignment {fail}")
             else:
                 why = f"{why}; self-calibrated: {fail}" if why else fail
     # all correspondences: 12 a pair let 8 unknowns a frame overfit them (Haltbrekken ROV: a 5-frame chain 9-21 px off)

@@ -125,6 +125,34 @@ def test_a_focal_length_that_contradicts_the_images_is_reported(synthetic_sweep,
     assert ce.max_px < 2.0
 
 
+def test_alignments_after_dropped_pairs_keep_the_camera_the_first_one_settled(synthetic_sweep, monkeypatch):
+    # GIVEN the sweep, a focal length 3x too long, and a pair outlier cut tight enough that the first
+    # alignment drops pairs (so the groups are aligned again)
+    import inspect_pipe.mosaic._align as align_mod
+    folder, H_gt, path, _ = synthetic_sweep
+    fits = []
+    original = align_mod.fit_pose_model
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        fits.append((kwargs["self_calibrate"], args[3]))
+        return out
+
+    monkeypatch.setattr(align_mod, "fit_pose_model", spy)
+    reg = register(FolderSource(folder), params=RegisterParams(focal_px=3 * path.focal_px, pair_outlier_px=0.2))
+    g = reg.groups[0]
+    # THEN self-calibration ran once, in the first alignment, and the later ones fitted its camera held fixed
+    first_self = [k for k, (self_cal, _) in enumerate(fits) if self_cal]
+    later = fits[first_self[-1] + 1:]
+    assert len(first_self) == 1 and len(later) >= 1, fits
+    assert all(not self_cal and f0 == pytest.approx(g.camera.f, rel=0.05) for self_cal, f0 in later), fits
+    # AND the group keeps the pose model, the contradiction stays reported, and the frames sit on the wall
+    assert g.model == "pose" and "contradicts the images" in g.note and "900" in g.note
+    assert abs(g.camera.f / path.focal_px - 1) < 0.15
+    ce = corner_error(g.H, H_gt, path.frame_wh)
+    assert ce.n_frames == len(H_gt) and ce.max_px < 2.0, ce
+
+
 def test_a_self_calibrated_fit_is_given_up_only_when_far_off_and_stalled():
     # GIVEN the stall rule (5 evaluations, 4x the acceptance limit, 1 % progress) with a limit of 1 px
     from types import SimpleNamespace
