@@ -1,7 +1,7 @@
 """State estimation: the paper's ``MAV_state_updater`` node (Table I).
 
-:func:`select_mode` maps the valid sensor set to the mode; :class:`MAVStateUpdater` feeds, per
-mode, each measurement to the state it measures: the horizontal and vertical speeds are one
+:func:`select_mode` maps the valid sensor set to the mode; :data:`TABLE_I` says, per mode, which
+measurement feeds which state; :class:`MAVStateUpdater` feeds them: the horizontal and vertical speeds are one
 :class:`SpeedObserver` per axis (speed and accelerometer bias, the IMU as input), the height and
 the front range are :class:`RangeObserver` s (the height one tells floor steps from motion), all in
 ``observers.py``. Optical-flow speeds are preferred over range derivatives. The alarm modes (-1,
@@ -13,6 +13,7 @@ on with the IMU and corrected by the horizontal sonars' range rates where they h
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
 SONAR_FLOOR_M = 0.32
 TOF_FLOOR_M = 0.25
 
-__all__ = ["MAVStateUpdater", "SensorStatus", "select_mode", "without_stale_imu"]
+__all__ = ["TABLE_I", "Feeds", "MAVStateUpdater", "SensorStatus", "Source", "select_mode", "without_stale_imu"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,6 +55,45 @@ def select_mode(status: SensorStatus) -> EstimationMode:
     if status.front_px:
         return EstimationMode.TOF_FRONT if status.bottom_tof else EstimationMode.FRONT
     return EstimationMode.ALARM_TOF if status.bottom_tof else EstimationMode.ALARM_NONE
+
+
+class Source(enum.Enum):
+    """What measures a state: the cells of Table I (the alarm modes' horizontal sources and the
+    vertical speed of mode -1 go beyond the paper, see :data:`TABLE_I`)."""
+
+    BOTTOM_FLOW = "bottom flow"
+    FRONT_FLOW = "front flow"
+    FRONT_RANGE_RATE = "front sonar derivative"
+    BOTTOM_SONAR = "bottom sonar (the TeraRanger below its clamp zone)"
+    TERARANGER = "TeraRanger"
+    HEIGHT_RATE = "height derivative"
+    INTEGRATED = "integrated (front flow's vz, else +val)"
+    RANGE_RATES = "the IMU, corrected by the horizontal sonars' range rates"
+    HEIGHT_RATE_AND_VAL = "TeraRanger derivative + val"
+    CARRIED_AND_VAL = "the IMU (relaxing to 0) + val"
+
+
+@dataclass(frozen=True, slots=True)
+class Feeds:
+    """One row of Table I: the measurement that feeds each state."""
+
+    height: Source
+    vx: Source
+    vy: Source
+    vz: Source
+
+
+#: Table I, mode by mode: which measurement feeds which state (docs/flight.md). The paper's alarm
+#: modes (-1, -2) set vx = vy = 0; here the speed observers carry the speeds on with the IMU and the
+#: horizontal sonars' range rates correct them where they hear a wall (``_range_rate_speeds``).
+TABLE_I: dict[EstimationMode, Feeds] = {
+    EstimationMode.BOTTOM: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.HEIGHT_RATE),
+    EstimationMode.BOTTOM_FRONT: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.FRONT_FLOW),
+    EstimationMode.TOF_FRONT: Feeds(Source.TERARANGER, Source.FRONT_RANGE_RATE, Source.FRONT_FLOW, Source.FRONT_FLOW),
+    EstimationMode.FRONT: Feeds(Source.INTEGRATED, Source.FRONT_RANGE_RATE, Source.FRONT_FLOW, Source.FRONT_FLOW),
+    EstimationMode.ALARM_TOF: Feeds(Source.TERARANGER, Source.RANGE_RATES, Source.RANGE_RATES, Source.HEIGHT_RATE_AND_VAL),
+    EstimationMode.ALARM_NONE: Feeds(Source.INTEGRATED, Source.RANGE_RATES, Source.RANGE_RATES, Source.CARRIED_AND_VAL),
+}
 
 
 def _fresh_range(r: RangeReading | None, now: float, timeout: float, max_range: float) -> bool:
@@ -200,9 +240,10 @@ class MAVStateUpdater:
                 hist.pop(0)
         status = self.status(now, m)
         mode = select_mode(status)
+        feeds = TABLE_I[mode]
         imu = m.imu
-        bflow = m.bottom_flow if status.bottom_px else None
-        fflow = m.front_flow if status.front_px else None
+        bflow = m.bottom_flow if feeds.vx is Source.BOTTOM_FLOW else None
+        fflow = m.front_flow if Source.FRONT_FLOW in (feeds.vy, feeds.vz) else None
         if imu is not None and (bflow is not None or fflow is not None):
             bflow, fflow = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, bflow, fflow)
         # Each IMU reading is integrated once, over the time since the last one integrated: a
@@ -242,7 +283,8 @@ class MAVStateUpdater:
         # rates correct them where they hear a wall (``_range_rate_speeds``).
         ox, oy, oz = self.obs
         noise = p.speed_noise_m_s
-        if bflow is not None:
+        if feeds.vx is Source.BOTTOM_FLOW:
+            assert bflow is not None
             # The PX4Flow scales its angular flow by its own sonar's range; below the sonar's
             # clamp (0.30 m) that range is too long and the speed too high by the ratio (3x at
             # 0.10 m). Taken as it came during take-off, it carried a speed the vehicle did not
@@ -257,7 +299,8 @@ class MAVStateUpdater:
                 scale = min(1.0, tof.range_m / bs.range_m) if clamped and status.bottom_tof else 1.0  # type: ignore[union-attr,operator]
                 ox.correct(bflow.vx_m_s * scale, noise, learn_bias=not clamped)
                 oy.correct(bflow.vy_m_s * scale, noise, learn_bias=not clamped)
-        elif fflow is not None:
+        elif feeds.vx is Source.FRONT_RANGE_RATE:
+            assert fflow is not None
             # Modes 2 and 3: vx is the front range's rate, which is the speed only while the
             # heading holds: turning, the range to a wall at an angle changes without any
             # translation (pushed while yawing, the rate said 0.2 m/s while the vehicle sped up to
@@ -274,7 +317,7 @@ class MAVStateUpdater:
 
         # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
         # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.
-        vz_flow = fflow.vz_m_s if fflow is not None else None
+        vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
         # Each range sensor within its range: below the bottom sonar's clamp zone the TeraRanger,
         # which reads down to 0.20 m, measures the height (the sonar reads 0.30 m there whether
         # the vehicle hovers 0.3 m up or stands on the floor, and a landing that hopped after a
@@ -282,11 +325,11 @@ class MAVStateUpdater:
         # it at 0.95 m/s: campaign seed 113 e1766). ``height_floor`` is the height below which the
         # measuring sensor's reading is its clamp within its noise (the flight machine's "down").
         source, latency, height_floor = None, 0.0, None
-        if status.bottom_px:
+        if feeds.height is Source.BOTTOM_SONAR:
             source, latency, height_floor = m.bottom_sonar, p.sonar_latency_s, SONAR_FLOOR_M
             if status.bottom_tof and source.range_m < p.sonar_clamp_zone_m:  # type: ignore[union-attr,operator]
                 source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
-        elif status.bottom_tof:
+        elif feeds.height is Source.TERARANGER:
             source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
         # "+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
         # a brief loss of every range sensor is not yet a lost reference. Descending at once, a
@@ -321,11 +364,11 @@ class MAVStateUpdater:
         # descent that slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent).
         if vz_flow is not None:
             oz.correct(vz_flow, noise)
-        elif mode != EstimationMode.ALARM_NONE:
+        elif feeds.vz in (Source.HEIGHT_RATE, Source.HEIGHT_RATE_AND_VAL):
             oz.correct(self.height.rate_m_s, noise, learn_bias=False)
-        if mode == EstimationMode.ALARM_TOF:
+        if feeds.vz is Source.HEIGHT_RATE_AND_VAL:
             vz = self.height.rate_m_s + climb
-        elif mode < 0:
+        elif feeds.vz is Source.CARRIED_AND_VAL:
             oz.v -= math.copysign(min(abs(oz.v), p.alarm_vz_leak_m_s2 * dt), oz.v)
             vz = oz.v + climb
         else:

@@ -9,7 +9,7 @@ import statistics
 
 import pytest
 
-from inspect_pipe.flight_stack.estimation import MAVStateUpdater, SensorStatus, select_mode
+from inspect_pipe.flight_stack.estimation import TABLE_I, MAVStateUpdater, SensorStatus, Source, select_mode
 from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, RangeSlope, SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.messages import (
     BottomFlow,
@@ -34,6 +34,40 @@ from inspect_pipe.flight_stack.messages import (
 )
 def test_table1_mode_from_sensor_set(bottom_px, bottom_tof, front_px, mode):
     assert select_mode(SensorStatus(bottom_px, bottom_tof, front_px)) == mode
+
+
+def test_table1_rows_say_which_measurement_feeds_each_state_as_the_paper_does():
+    # Table I of the paper, modes 0-3 (height, vx, vy, vz); the alarm modes' zeros are replaced
+    # by IMU-carried speeds corrected by range rates, and their vertical speed is a '+val' descent
+    S = Source
+    paper = {
+        0: (S.BOTTOM_SONAR, S.BOTTOM_FLOW, S.BOTTOM_FLOW, S.HEIGHT_RATE),
+        1: (S.BOTTOM_SONAR, S.BOTTOM_FLOW, S.BOTTOM_FLOW, S.FRONT_FLOW),
+        2: (S.TERARANGER, S.FRONT_RANGE_RATE, S.FRONT_FLOW, S.FRONT_FLOW),
+        3: (S.INTEGRATED, S.FRONT_RANGE_RATE, S.FRONT_FLOW, S.FRONT_FLOW),
+    }
+    assert set(TABLE_I) == set(EstimationMode)
+    for mode, row in paper.items():
+        f = TABLE_I[EstimationMode(mode)]
+        assert (f.height, f.vx, f.vy, f.vz) == row, mode
+    for mode in (EstimationMode.ALARM_TOF, EstimationMode.ALARM_NONE):
+        f = TABLE_I[mode]
+        assert f.vx is f.vy is S.RANGE_RATES and "val" in f.vz.value
+    assert TABLE_I[EstimationMode.ALARM_TOF].height is S.TERARANGER
+
+
+def test_mode_0_takes_its_vertical_speed_from_the_height_not_from_a_front_flow_of_low_quality():
+    # GIVEN hover at 1.5 m over the floor (mode 0: the front flow's quality below the threshold),
+    # the front flow claiming a 0.5 m/s climb
+    est = MAVStateUpdater()
+    for k in range(200):
+        t = k * 0.02
+        m = _meas(t, vx=0.0, vy=0.0, vz=0.0)
+        ff = dataclasses.replace(m.front_flow, vz_m_s=0.5, quality=10)
+        e, _ = est.update(t, dataclasses.replace(m, front_flow=ff))
+    # THEN Table I's mode 0 feeds vz from the height's derivative: the claim is not used
+    assert e.mode == EstimationMode.BOTTOM
+    assert abs(e.vz_m_s) < 0.05
 
 
 def _meas(t, *, bottom=True, tof=True, front=True, height=1.5, front_range=2.0, vx=0.3, vy=-0.1, vz=0.05, jitter: bool = True):
