@@ -130,7 +130,7 @@ class BehaviorParams:
         "surface (prevent_collision, and the estimator's oblique-wall fit)"
     )
     repulsion_deadband_m: float = param(
-        0.05, 0.0, 0.3, "m", "inside the safe distance by less than this: hold (0), no repulsion"
+        0.05, 0.0, 0.3, "m", "inside the safe distance by less than this and not moving in: hold (0), no repulsion"
     )
     link_loss_deadband_m: float = param(
         0.2, 0.0, 0.5, "m",

@@ -31,9 +31,9 @@ CASES = [
     (4, 1172, "campaign_s4_e01172_wall_push.yaml", 0.119, 0.10),
     # a gust ends at a wall (the XY integrators now leak while the observers run); a stuck
     # bottom flow whose reading was 0.07 m/s off the true speed (judged against the filtered one)
-    pytest.param(1, 8, "campaign_s1_e00008_passage.yaml", 0.127, 0.10, marks=pytest.mark.xfail(
-        strict=True, reason="open on the honest simulator (issue 19): 0.132 m; the 1.95 m/s gust's attitude-estimate "
-        "transient is a false acceleration the disturbance observer answers (docs/campaign.md, What is left)")),
+    # (open on the honest simulator until session 20, 0.132 m: the gust's end left a trim that crept the
+    # vehicle on inside the hold band; the band now holds only a vehicle not moving in)
+    (1, 8, "campaign_s1_e00008_passage.yaml", 0.127, 0.10),
     (1, 124, "campaign_s1_e00124_wall_push.yaml", 0.114, 0.10),
     # mode 2 (bottom flow quality zero) during a push while yawing: vx carried with the IMU
     (1, 433, "campaign_s1_e00433_push_yaw.yaml", 0.10007, 0.05),
@@ -59,6 +59,11 @@ HONEST_CASES = [
     # every range sensor lost for 2.1 s at the front wall's line: a blind drift of 0.16 m past it,
     # backed out of too slowly once the sensors came back (repulsion 1.6 1/s: 0.133 m a second later)
     (12, 110, "campaign_s12_e00110_wall_push.yaml", 0.133, 0.10),
+    # held at the line with a zero command, the integrators' approach trim (or a gust's end) crept the
+    # vehicle on inside the repulsion's hold band (session 20: the band holds only a vehicle not moving in)
+    (173, 163, "campaign_s173_e00163_push_yaw.yaml", 0.108, 0.10),
+    (173, 1452, "campaign_s173_e01452_wall_push.yaml", 0.101, 0.10),
+    (173, 1761, "campaign_s173_e01761_push_yaw.yaml", 0.112, 0.10),
 ]
 
 
@@ -66,8 +71,9 @@ HONEST_CASES = [
 def test_blind_drift_is_backed_out_of_within_the_goal(seed, index, fname, before, bound):
     assert (REGRESSIONS / fname).is_file()
     # GIVEN every range sensor lost while the vehicle holds at a wall's stop line (it drifts past
-    # the line unseen) WHEN the sensors come back THEN prevent_collision's repulsion has it back
-    # within the goal of the line by the time the metric counts again (1 s after the fault)
+    # the line unseen), or a trim or a gust's end that creeps it on past the line WHEN the sensors
+    # come back (or the creep starts) THEN prevent_collision's repulsion keeps it, or has it back,
+    # within the goal of the line by the time the metric counts
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided
     assert r.overshoot_m is not None and r.overshoot_m <= bound < before

@@ -108,6 +108,20 @@ def test_prevent_collision_holds_without_repulsion_inside_the_dead_band():
     assert deeper == pytest.approx(-P.repulsion_gain_1_s * 0.1)
 
 
+def test_the_dead_band_holds_only_a_vehicle_not_moving_in():
+    pc = PreventCollision(P)
+    d = P.safe_distance_m - 0.04  # 4 cm inside the line, within the 5 cm hold band
+    # GIVEN a vehicle at rest (or backing out) there: hold
+    assert pc.update(_in(front=d, vx=0.0), 0.02).vx_m_s == 0.0
+    assert pc.update(_in(front=d, vx=-0.05), 0.02).vx_m_s == 0.0
+    # GIVEN one still creeping in at 0.05 m/s (a trim left from the approach): pushed back from the line
+    assert pc.update(_in(front=d, vx=0.05), 0.02).vx_m_s == pytest.approx(-P.repulsion_gain_1_s * 0.04)
+    # the same for a side wall (moving right, towards it)
+    assert pc.update(_in(right=d, vy=-0.05), 0.02).vy_m_s == pytest.approx(P.repulsion_gain_1_s * 0.04)
+    # AND with the link lost the wider band holds whatever the speed (hover first)
+    assert pc.update(_in(front=d, vx=0.05, link=False), 0.02).vx_m_s == 0.0
+
+
 def test_prevent_collision_stops_every_axis_when_an_oblique_surface_closes_in():
     import dataclasses
 

@@ -60,10 +60,20 @@ class PreventCollision:
         # safe distance (the stop's tolerance, a gust) holds there rather than backing away: the
         # safety campaign found link-loss "hovers" 0.5-1.4 s late from 0.02-0.1 m/s repulsions
         # 5-12 cm inside the line. Deeper inside, the repulsion acts as always.
-        band = p.repulsion_deadband_m if inputs.link_ok else max(p.repulsion_deadband_m, p.link_loss_deadband_m)
-        vx = self._axis(c.front_m, e.vx_m_s, band)
-        left = self._axis(c.left_m, e.vy_m_s, band)
-        right = self._axis(c.right_m, -e.vy_m_s, band)
+        # The hold band is for a vehicle at rest inside the line. One still moving in (a trim the
+        # integrators kept from the approach, a gust's end) is pushed back from the line itself:
+        # held at zero, it crept on at 0.05-0.1 m/s for 1-2 s and ended 0.10-0.11 m inside (tuning
+        # seed 173: e163, e1452, e1761; docs/campaign.md, session 20).
+        link_band = max(p.repulsion_deadband_m, p.link_loss_deadband_m)
+
+        def band(closing_m_s: float) -> float:
+            if not inputs.link_ok:
+                return link_band
+            return p.repulsion_deadband_m if closing_m_s <= 0.0 else 0.0
+
+        vx = self._axis(c.front_m, e.vx_m_s, band(e.vx_m_s))
+        left = self._axis(c.left_m, e.vy_m_s, band(e.vy_m_s))
+        right = self._axis(c.right_m, -e.vy_m_s, band(-e.vy_m_s))
         if left is None and right is None:
             vy = None
         else:
