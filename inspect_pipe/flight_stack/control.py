@@ -141,7 +141,7 @@ class FlightController:
         xy = dict(integral_limit=lim, integrate_band=p.speed_integrate_band_m_s)
         self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
         self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
-        vlim = p.vertical_integral_limit_m_s2
+        vlim = p.vertical_trim_limit_m_s2
         self.pid_vz = PID(
             p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
             unwind_factor=p.vz_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
@@ -155,7 +155,7 @@ class FlightController:
         obs_xy = dict(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_xy_limit_m_s2, lag_s=lag)
         self.obs_x = AccelObserver(**obs_xy)
         self.obs_y = AccelObserver(**obs_xy)
-        self.obs_z = AccelObserver(tau_s=p.accel_observer_tau_s, limit=p.accel_observer_limit_m_s2, lag_s=lag)
+        self.obs_z = AccelObserver(tau_s=p.accel_observer_tau_s, limit=p.vertical_trim_limit_m_s2, lag_s=lag)
 
     def reset(self) -> None:
         for pid in (self.pid_vx, self.pid_vy, self.pid_vz, self.pid_height):

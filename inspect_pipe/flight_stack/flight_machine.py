@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.estimation import SONAR_FLOOR_M
 from inspect_pipe.flight_stack.messages import EstimationMode, StateEstimate
-from inspect_pipe.flight_stack.params import FlightMachineParams
+from inspect_pipe.flight_stack.params import BehaviorParams, FlightMachineParams
 
 __all__ = ["FlightMachine", "FlightState", "FlightEvents", "ImpactDetector"]
 
@@ -55,17 +55,20 @@ class FlightMachine:
     """Transitions on user buttons, the estimated height, time and thrust. ``now`` passed in.
 
     landed -> taking_off: take-off button (unless landing is requested, e.g. low battery).
-    taking_off -> flying: height above ``takeoff_end_height_m`` or ``takeoff_high_thrust_s`` at
+    taking_off -> flying: height above ``flying_height_m`` or ``takeoff_high_thrust_s`` at
     high thrust. taking_off/flying -> descending: land button or low battery.
-    descending -> landing: height below ``descend_end_height_m``.
+    descending -> landing: height below ``flying_height_m``.
     flying -> landing: alarm mode -1 below that height, or in any alarm mode the jolt of
     touching the floor (mode -2 has no height reference: the descent ends on the floor).
     landing -> landed: touchdown (height at the sonar's minimum, no vertical speed) and the thrust
     ramp-down finished, or the ramp's time-out (only without a height reference or below 0.5 m).
     """
 
-    def __init__(self, params: FlightMachineParams | None = None) -> None:
+    def __init__(self, params: FlightMachineParams | None = None, behaviors: BehaviorParams | None = None) -> None:
         self.p = params or FlightMachineParams()
+        # No height measured: the fastest the vehicle may be descending, twice the largest vertical
+        # speed the behaviours command (what a jolt is judged against, see ``update``).
+        self.fastest_descent_m_s = 2.0 * (behaviors or BehaviorParams()).max_vertical_speed_m_s
         self.state = FlightState.LANDED
         self.entered_s = 0.0
         self.high_thrust_s = 0.0
@@ -101,30 +104,30 @@ class FlightMachine:
             self.high_thrust_s = self.high_thrust_s + dt if ev.high_thrust else 0.0
             if ev.land_requested:
                 self._go(FlightState.DESCENDING, now)
-            elif est.mode >= 0 and est.height_m >= p.takeoff_end_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
+            elif est.mode >= 0 and est.height_m >= p.flying_height_m or self.high_thrust_s >= p.takeoff_high_thrust_s:
                 self._go(FlightState.FLYING, now)
         elif s is FlightState.FLYING or s is FlightState.DESCENDING:
             # No measured height or vertical speed (alarm modes, whose vertical speed is the
             # filled-in '+val.'; mode 3 integrates the height): the floor's jolt is the touchdown.
             # A vehicle that drifted into front-wall range during an alarm descent reached the
             # floor in mode 3 and sat there "flying". Mode -1 still measures the height (the
-            # TeraRanger): a jolt above descend_end_height_m is not the floor (a vibration fault's
+            # TeraRanger): a jolt above flying_height_m is not the floor (a vibration fault's
             # first spikes at 3.5 m ramped the thrust down in mid-air: campaign seed 137 e145).
             # Mode -2 and mode 3 have no height to test a jolt by, but the last measured one
-            # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` from that
+            # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` (1.2 m/s) from that
             # height could reach the floor is not the floor (every range sensor lost at 2.06 m,
             # a vibration fault's first spikes 0.7 s later: the ramp-down began there and the
             # vehicle fell at 4 m/s; found by pairing fault classes by hand, 2026-11-28).
-            high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.descend_end_height_m
+            high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.flying_height_m
             if unmeasured and not high and self._measured is not None:
                 h, t = self._measured
-                high = now - t < (h - p.descend_end_height_m) / p.fastest_descent_m_s
+                high = now - t < (h - p.flying_height_m) / self.fastest_descent_m_s
             if unmeasured and ev.impact and not high:
                 self._go(FlightState.LANDING, now)
                 self.touchdown_s = now
             elif s is FlightState.FLYING and ev.land_requested:
                 self._go(FlightState.DESCENDING, now)
-            elif (s is FlightState.DESCENDING or est.mode == EstimationMode.ALARM_TOF) and est.height_m < p.descend_end_height_m:
+            elif (s is FlightState.DESCENDING or est.mode == EstimationMode.ALARM_TOF) and est.height_m < p.flying_height_m:
                 self._go(FlightState.LANDING, now)
         elif s is FlightState.LANDING:
             # Down: the height at its sensor's minimum, where it clamps, within its noise (the
@@ -136,7 +139,7 @@ class FlightMachine:
             # height well above the floor, or still descending, the vehicle is not down (safety campaign: a battery sag
             # ended mid-landing, the vehicle climbed back to 1 m, the time-out cut the thrust
             # there and it fell at 2.3 m/s).
-            timed_out = self.time_in_state(now) > p.descend_end_height_m / p.landing_speed_m_s + 3.0 and (
+            timed_out = self.time_in_state(now) > p.flying_height_m / p.landing_speed_m_s + 3.0 and (
                 unmeasured or (est.height_m <= 0.5 and abs(est.vz_m_s) < 0.1)
             )
             # On the ground for a moment, not at a bounce's turning point (safety campaign: a

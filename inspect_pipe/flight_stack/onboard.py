@@ -45,7 +45,7 @@ class OnboardStack:
         p = self.params
         self.state_updater = MAVStateUpdater(p.estimation, p.behaviors)
         self.behaviors = MAVBehaviors(p.behaviors)
-        self.machine = FlightMachine(p.flight_machine)
+        self.machine = FlightMachine(p.flight_machine, p.behaviors)
         self.controller = FlightController(p.control)
         self._last_now: float | None = None
         self._last_thrust = 0.0
@@ -184,7 +184,7 @@ class OnboardStack:
     def _finish_takeoff_climb(self, cmd: SpeedCommand, est: StateEstimate) -> None:
         """Keep the take-off's hover height as the floor of the height hold until it is reached.
 
-        The flight machine hands over to FLYING at ``takeoff_end_height_m`` (0.5 m); a slow climb
+        The flight machine hands over to FLYING at ``flying_height_m`` (0.5 m); a slow climb
         (heavy vehicle, weak motors) then met an operator's short climb command that was meant to
         start from the hover height, and the hold latched at 0.6 m, level with hatch coamings
         (safety campaign, +17 % mass: flew into a 0.51 m floor step). A descent command ends it."""

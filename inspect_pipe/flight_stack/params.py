@@ -120,9 +120,10 @@ class BehaviorParams:
     safe_distance_m: float = param(1.0, 0.4, 4.0, "m", "minimum distance allowed to an obstacle")
     response_time_s: float = param(0.3, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
-    repulsion_gain_1_s: float = param(
-        2.5, 0.1, 5.0, "1/s", "prevent_collision speed per metre inside (beyond the dead band); at 1.6 a vehicle found "
-        "0.2 m inside once its range sensors came back (a blind drift) was still 0.13 m inside a second later"
+    position_gain_1_s: float = param(
+        2.5, 0.1, 5.0, "1/s", "speed per metre of position error: prevent_collision's back-off per metre inside the safe "
+        "distance (beyond the dead band; at 1.6 a vehicle found 0.2 m inside once its range sensors came back, a blind "
+        "drift, was still 0.13 m inside a second later), and waiting_for_connectivity's speed back to the held point"
     )
     repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s", "prevent_collision backs away at most this fast (Fig. 6 E-F)")
     oblique_margin_m_s: float = param(
@@ -136,9 +137,6 @@ class BehaviorParams:
         0.2, 0.0, 0.5, "m",
         "while the link is lost (waiting_for_connectivity): the repulsion's dead band; the vehicle holds "
         "station a little inside the safe distance instead of backing away",
-    )
-    link_loss_hold_gain_1_s: float = param(
-        2.5, 0.0, 10.0, "1/s", "waiting_for_connectivity: speed back to the held position per metre off it"
     )
     link_loss_rest_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "waiting_for_connectivity: hover until the speed estimate is below this, then hold that point"
@@ -192,14 +190,12 @@ class ControlParams:
     height_integral_band_m: float = param(0.1, 0.0, 5.0, "m", "height PID integrates within this error")
     height_latch_lead_s: float = param(0.3, 0.0, 2.0, "s", "height held = altitude + vz * lead when vz command ends")
     integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2", "XY speed integrator clamp (about 11 deg of tilt)")
-    vertical_integral_limit_m_s2: float = param(
-        6.0, 0.0, 10.0, "m/s^2", "vertical trim range: +-30 % mass or thrust needs ~4.2 m/s^2"
+    vertical_trim_limit_m_s2: float = param(
+        6.0, 0.0, 10.0, "m/s^2", "vertical trim range, of the speed integrator and of the disturbance observer: "
+        "+-30 % mass or thrust needs ~4.2 m/s^2"
     )
     accel_observer_tau_s: float = param(
         0.25, 0.0, 5.0, "s", "disturbance observers (IMU), vertical and horizontal: time constant (0: off)"
-    )
-    accel_observer_limit_m_s2: float = param(
-        6.0, 0.0, 10.0, "m/s^2", "vertical disturbance observer: largest thrust shortfall it makes up (as the vertical trim)"
     )
     accel_observer_xy_limit_m_s2: float = param(
         1.5, 0.0, 10.0, "m/s^2", "horizontal disturbance observers: largest wind force it makes up (0: off)"
@@ -226,11 +222,13 @@ class ControlParams:
 @dataclass(frozen=True)
 class FlightMachineParams:
     takeoff_climb_m_s: float = param(0.5, 0.1, 2.0, "m/s", "take-off climb speed")
-    takeoff_end_height_m: float = param(0.5, 0.2, 2.0, "m", "taking_off -> flying above this")
+    flying_height_m: float = param(
+        0.5, 0.2, 2.0, "m", "taking_off -> flying above this, descending -> landing below it (and mode -1's jolt is "
+        "the floor only below it)"
+    )
     takeoff_high_thrust_s: float = param(4.0, 0.5, 20.0, "s", "or after this long at high thrust")
     hover_height_m: float = param(1.0, 0.5, 5.0, "m", "height held after take-off")
-    descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s", "descending (land requested) until descend_end_height_m")
-    descend_end_height_m: float = param(0.5, 0.2, 2.0, "m", "descending -> landing below this")
+    descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s", "descending (land requested) until flying_height_m")
     touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s", "final landing speed (below the 1 m/s a floor contact counts as a crash)")
     impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
@@ -238,10 +236,6 @@ class FlightMachineParams:
         5.0, 0.0, 20.0, "sigma", "... and beyond this many RMS of the IMU's recent unexplained lift in flight (vibration)"
     )
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
-    fastest_descent_m_s: float = param(
-        1.2, 0.3, 5.0, "m/s", "no height measured: a jolt is the floor only once a descent this fast could have reached it "
-        "from the last measured height (twice the largest vertical speed command)"
-    )
 
 
 @dataclass(frozen=True)

@@ -97,7 +97,7 @@ def test_prevent_collision_repulsion_grows_with_proximity_and_is_capped():
     assert v09 < 0 and v06 < v09 and v01 == -P.repulsion_max_m_s
     assert pc.update(_in(front=3.0, vx=0.4), 0.02) is None
     side = pc.update(_in(left=0.8, right=0.9), 0.02)
-    assert side.vy_m_s == pytest.approx(-P.repulsion_gain_1_s * 0.2 + P.repulsion_gain_1_s * 0.1)
+    assert side.vy_m_s == pytest.approx(-P.position_gain_1_s * 0.2 + P.position_gain_1_s * 0.1)
 
 
 def test_prevent_collision_holds_without_repulsion_inside_the_dead_band():
@@ -105,7 +105,7 @@ def test_prevent_collision_holds_without_repulsion_inside_the_dead_band():
     # a few centimetres inside the line: hold (0), not a never-ending creep backwards
     assert pc.update(_in(front=P.safe_distance_m - 0.5 * P.repulsion_deadband_m), 0.02).vx_m_s == 0.0
     deeper = pc.update(_in(front=P.safe_distance_m - P.repulsion_deadband_m - 0.1), 0.02).vx_m_s
-    assert deeper == pytest.approx(-P.repulsion_gain_1_s * 0.1)
+    assert deeper == pytest.approx(-P.position_gain_1_s * 0.1)
 
 
 def test_the_dead_band_holds_only_a_vehicle_not_moving_in():
@@ -115,9 +115,9 @@ def test_the_dead_band_holds_only_a_vehicle_not_moving_in():
     assert pc.update(_in(front=d, vx=0.0), 0.02).vx_m_s == 0.0
     assert pc.update(_in(front=d, vx=-0.05), 0.02).vx_m_s == 0.0
     # GIVEN one still creeping in at 0.05 m/s (a trim left from the approach): pushed back from the line
-    assert pc.update(_in(front=d, vx=0.05), 0.02).vx_m_s == pytest.approx(-P.repulsion_gain_1_s * 0.04)
+    assert pc.update(_in(front=d, vx=0.05), 0.02).vx_m_s == pytest.approx(-P.position_gain_1_s * 0.04)
     # the same for a side wall (moving right, towards it)
-    assert pc.update(_in(right=d, vy=-0.05), 0.02).vy_m_s == pytest.approx(P.repulsion_gain_1_s * 0.04)
+    assert pc.update(_in(right=d, vy=-0.05), 0.02).vy_m_s == pytest.approx(P.position_gain_1_s * 0.04)
     # AND with the link lost the wider band holds whatever the speed (hover first)
     assert pc.update(_in(front=d, vx=0.05, link=False), 0.02).vx_m_s == 0.0
 
@@ -217,7 +217,7 @@ def test_waiting_for_connectivity_brakes_to_rest_then_holds_where_it_stopped():
     pushed = dataclasses.replace(rest, estimate=dataclasses.replace(rest.estimate, odometry=(2.4, 0.0, 0.0)))
     v = wfc.update(pushed, 0.02)
     # THEN it flies back towards the rest point, not towards where the loss was detected
-    assert v.vx_m_s == pytest.approx(-P.link_loss_hold_gain_1_s * 0.1)
+    assert v.vx_m_s == pytest.approx(-P.position_gain_1_s * 0.1)
 
 
 def test_near_a_wall_the_station_keeping_is_bounded_not_cancelled_while_the_link_is_lost():
@@ -240,7 +240,7 @@ def test_near_a_wall_the_station_keeping_is_bounded_not_cancelled_while_the_link
     # THEN the station keeping flies it back to its rest point, away from the wall (before 2026-11-28
     # prevent_collision bounded the absent operator's zero instead and cancelled the hold on that axis:
     # seed 83 e331 drifted 0.41 m in a 1 m/s gust, e1317 0.21 m)
-    assert out.command.vy_m_s == pytest.approx(-P.link_loss_hold_gain_1_s * 0.06)
+    assert out.command.vy_m_s == pytest.approx(-P.position_gain_1_s * 0.06)
     # AND towards the wall the bound still holds: carried 0.06 m away from it, it does not close in again
     out = tick(0.04, -0.06, 0.98)
     assert out.command.vy_m_s <= 0.0 and "prevent_collision" in out.behaviors

@@ -121,7 +121,7 @@ def test_a_jolt_with_no_height_measured_is_the_floor_only_once_a_descent_could_r
     m.state = FlightState.FLYING
     assert _run(m, 1.0, _est(2.0)) is FlightState.FLYING
     # WHEN the IMU jolts 0.7 s later (a vibration fault's first spikes): no descent at 1.2 m/s
-    # covers the 1.5 m to descend_end_height_m in 0.7 s, so it is not the floor
+    # covers the 1.5 m to flying_height_m in 0.7 s, so it is not the floor
     assert _run(m, 1.7, _est(2.0, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.FLYING
     # THEN a jolt after 1.25 s may be: the touchdown
     assert _run(m, 2.3, _est(2.0, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.LANDING
