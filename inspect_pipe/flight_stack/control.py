@@ -8,7 +8,7 @@ import enum
 import math
 
 from inspect_pipe.flight_stack.messages import AttitudeSetpoint, SpeedCommand, StateEstimate
-from inspect_pipe.flight_stack.params import ControlParams
+from inspect_pipe.flight_stack.params import BehaviorParams, ControlParams
 
 __all__ = ["FlightController", "PID", "VerticalMode"]
 
@@ -132,8 +132,11 @@ class VerticalMode(enum.Enum):
 class FlightController:
     """Runs on the paper's secondary ARM7: speed command + state estimate -> attitude set-point."""
 
-    def __init__(self, params: ControlParams | None = None) -> None:
+    def __init__(self, params: ControlParams | None = None, behaviors: BehaviorParams | None = None) -> None:
         p = self.p = params or ControlParams()
+        # The speed loop's lag, as the behaviours predict a stop with it: where a vertical command
+        # ends, the height is latched where the vehicle will come to rest.
+        self.latch_lead_s = (behaviors or BehaviorParams()).response_time_s
         lim = p.integral_limit_m_s2
         # PI on the XY speeds: no derivative (the flow speed is too noisy to differentiate), and
         # no leak of the integrators (a leak makes the loop proportional-only against whatever
@@ -221,7 +224,7 @@ class FlightController:
                 if self.height_ref_m is None:
                     # Hold where the vehicle will come to rest, not where the stick was centred:
                     # no bounce back after a climb or a descent.
-                    self.height_ref_m = est.altitude_m + est.vz_m_s * p.height_latch_lead_s
+                    self.height_ref_m = est.altitude_m + est.vz_m_s * self.latch_lead_s
                 # Bumpless hand-over: the speed loop's trim becomes the height loop's.
                 self.pid_height.reset(self.pid_vz.integral)
             err = self.height_ref_m - est.altitude_m

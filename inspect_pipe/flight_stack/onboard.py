@@ -46,7 +46,7 @@ class OnboardStack:
         self.state_updater = MAVStateUpdater(p.estimation, p.behaviors)
         self.behaviors = MAVBehaviors(p.behaviors)
         self.machine = FlightMachine(p.flight_machine, p.behaviors)
-        self.controller = FlightController(p.control)
+        self.controller = FlightController(p.control, p.behaviors)
         self._last_now: float | None = None
         self._last_thrust = 0.0
         # Height the take-off promised (hover_height_m) and not yet reached: the height hold does

@@ -118,7 +118,10 @@ class EstimationParams:
 class BehaviorParams:
     attenuation_start_m: float = param(1.5, 0.5, 5.0, "m", "attenuated_go starts slowing here")
     safe_distance_m: float = param(1.0, 0.4, 4.0, "m", "minimum distance allowed to an obstacle")
-    response_time_s: float = param(0.3, 0.0, 2.0, "s", "speed-loop lag used to predict the stop")
+    response_time_s: float = param(
+        0.3, 0.0, 2.0, "s", "speed-loop lag used to predict where the vehicle stops: the behaviours' stop lines, and "
+        "the height the controller holds when a vertical command ends (altitude + vz x this)"
+    )
     brake_decel_m_s2: float = param(1.2, 0.2, 5.0, "m/s^2", "deceleration assumed when stopping")
     position_gain_1_s: float = param(
         2.5, 0.1, 5.0, "1/s", "speed per metre of position error: prevent_collision's back-off per metre inside the safe "
@@ -188,7 +191,6 @@ class ControlParams:
     height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3", "height PID integral: the hover trim while holding height")
     height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s", "height PID damping on the measured vertical speed")
     height_integral_band_m: float = param(0.1, 0.0, 5.0, "m", "height PID integrates within this error")
-    height_latch_lead_s: float = param(0.3, 0.0, 2.0, "s", "height held = altitude + vz * lead when vz command ends")
     integral_limit_m_s2: float = param(2.0, 0.0, 10.0, "m/s^2", "XY speed integrator clamp (about 11 deg of tilt)")
     vertical_trim_limit_m_s2: float = param(
         6.0, 0.0, 10.0, "m/s^2", "vertical trim range, of the speed integrator and of the disturbance observer: "

@@ -9,7 +9,7 @@ import pytest
 from inspect_pipe.flight_stack.control import G, PID, FlightController, VerticalMode
 from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState
 from inspect_pipe.flight_stack.messages import EstimationMode, SpeedCommand, StateEstimate
-from inspect_pipe.flight_stack.params import ControlParams
+from inspect_pipe.flight_stack.params import BehaviorParams, ControlParams
 
 
 def _est(alt=1.0, vx=0.0, vy=0.0, vz=0.0, mode=EstimationMode.BOTTOM):
@@ -46,7 +46,7 @@ def test_height_pid_replaces_vertical_speed_pid_when_vz_command_is_zero():
     assert c.vertical_mode is VerticalMode.SPEED
     c.update(SpeedCommand(), _est(alt=1.2, vz=0.2), 0.02)
     assert c.vertical_mode is VerticalMode.HEIGHT
-    assert c.height_ref_m == pytest.approx(1.2 + 0.2 * ControlParams().height_latch_lead_s)
+    assert c.height_ref_m == pytest.approx(1.2 + 0.2 * BehaviorParams().response_time_s)
     low = c.update(SpeedCommand(), _est(alt=1.0, vz=0.0), 0.02)
     assert low.thrust_frac > ControlParams().hover_thrust_frac  # below the reference: climb
 
