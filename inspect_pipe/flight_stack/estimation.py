@@ -156,75 +156,109 @@ class MAVStateUpdater:
         return self.health.status(now, m, self.obs)
 
     def update(self, now: float, m: Measurements) -> tuple[StateEstimate, Clearance]:
+        """One tick: the valid sensors give the mode (Table I), the mode says which measurement
+        feeds each state, and the observers, carried by the IMU, take them."""
         p = self.p
         m = without_stale_imu(m, now, p.imu_timeout_s)
         dt = 0.0 if self._last_now is None else max(now - self._last_now, 0.0)
         self._last_now = now
         ax, ay, az = m.imu.heading_accel() if m.imu is not None else (0.0, 0.0, 0.0)
         m = self.health.without_stuck_ranges(m, az, dt, self.obs)
+        self._imu_silence(m)
+        self.rates.feed(now, m)
+        if m.imu is not None and m.imu.yaw_rad is not None:
+            self._yaw = m.imu.yaw_rad
+            self.rates.note_heading(now, self._yaw)
+
+        status = self.status(now, m)
+        mode = select_mode(status)
+        feeds = TABLE_I[mode]
+
+        bflow = m.bottom_flow if feeds.vx is Source.BOTTOM_FLOW else None
+        fflow = m.front_flow if Source.FRONT_FLOW in (feeds.vy, feeds.vz) else None
+        if m.imu is not None and (bflow is not None or fflow is not None):
+            bflow, fflow = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, bflow, fflow)
+        # Each IMU reading is integrated once, over the time since the last one integrated: a
+        # link that delivers readings out of step with the ticks (or stops) repeats the last one,
+        # and that sample's acceleration is no longer what the vehicle does.
+        self._imu_dt += dt
+        if m.imu is not None and self._ledger.new("imu", m.imu.stamp_s):
+            self._predict(ax, ay, az, min(self._imu_dt, p.imu_timeout_s))
+            self._imu_dt = 0.0
+        self.health.restart_after_stuck_flow(self.obs, self.front)
+
+        self._front_range(now, m, ax, bflow)
+        vx, vy = self._horizontal_speeds(now, m, feeds, status, bflow, fflow)
+        if self._yaw is not None:
+            self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
+        vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
+        climb = self._alarm_climb(now, mode)
+        height_floor = self._height(now, m, feeds, status, az, vz_flow, climb)
+        vz = self._vertical_speed(feeds, vz_flow, climb, dt)
+
+        self.rates.note_speed(now, vx, vy)
+        est = StateEstimate(
+            height_m=self.height.height_m,
+            height_floor_m=height_floor,
+            altitude_m=self.height.altitude_m,
+            vx_m_s=vx,
+            vy_m_s=vy,
+            vz_m_s=vz,
+            mode=mode,
+            odometry=None if self._yaw is None else (self.memory.x, self.memory.y, self._yaw),
+        )
+        return est, self.clearances.update(now, m, est, self.front.value, self.rates.rates, self._yaw)
+
+    def _imu_silence(self, m: Measurements) -> None:
+        """Without an IMU reading nothing measures the vehicle's motion: the odometry cannot place
+        what the sonars heard before, so the memory forgets it (the sonars refill it within a
+        reading); when the IMU speaks again, the speeds carried through the silence are unknown by
+        whatever the vehicle did meanwhile: restarted with the initial variance, the first flow or
+        range rate is taken in full, not gated out against a confident stale speed."""
         if m.imu is None:
-            # Nothing measures the vehicle's motion: the odometry cannot place what the sonars
-            # heard before, so the memory forgets it (the sonars refill it within a reading)...
             self.memory.reset()
             self._imu_silent = self._had_imu
         elif self._imu_silent:
-            # ...and the speeds carried through the silence are unknown by whatever the vehicle
-            # did meanwhile: restarted with the initial variance, the first flow or range rate is
-            # taken in full, not gated out against a confident stale speed.
             for o in self.obs:
                 o.restart(o.v)
             self._imu_silent = False
             self._imu_dt = 0.0  # the silence is not integrated with the first reading after it
         else:
             self._had_imu = True
-        self.rates.feed(now, m)
-        if m.imu is not None and m.imu.yaw_rad is not None:
-            self._yaw = m.imu.yaw_rad
-            self.rates.note_heading(now, self._yaw)
-        status = self.status(now, m)
-        mode = select_mode(status)
-        feeds = TABLE_I[mode]
-        imu = m.imu
-        bflow = m.bottom_flow if feeds.vx is Source.BOTTOM_FLOW else None
-        fflow = m.front_flow if Source.FRONT_FLOW in (feeds.vy, feeds.vz) else None
-        if imu is not None and (bflow is not None or fflow is not None):
-            bflow, fflow = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, bflow, fflow)
-        # Each IMU reading is integrated once, over the time since the last one integrated: a
-        # link that delivers readings out of step with the ticks (or stops) repeats the last one,
-        # and that sample's acceleration is no longer what the vehicle does.
-        self._imu_dt += dt
-        if imu is not None and self._ledger.new("imu", imu.stamp_s):
-            self._predict(ax, ay, az, min(self._imu_dt, p.imu_timeout_s))
-            self._imu_dt = 0.0
-        self.health.restart_after_stuck_flow(self.obs, self.front)
 
-        # Front range (vx in modes 2 and 3, front clearance always). Flow speed, when there is
-        # one, drives the range between samples; otherwise the IMU does.
+    def _front_range(self, now: float, m: Measurements, ax: float, bflow) -> None:
+        """The front range (vx in modes 2 and 3, the front clearance always). Flow speed, when
+        there is one, drives the range between samples; otherwise the IMU does.
+
+        One accelerometer bias along x: the x observer's (learnt from the bottom flow) while there
+        is one; without it the front range observer's own bias state, which the sonar corrects
+        (modes 2 and 3). Not shared, the speed loop pushed with a bias only one of them knew, and
+        the Fig. 5 hover in mode 2 drifted 0.30 m."""
+        p = self.p
         self.front.propagate(now, -ax, -bflow.vx_m_s if bflow is not None else None)
         fs = m.front_sonar
         if fs is not None and fs.range_m is not None and self._ledger.new("front_range", fs.stamp_s):
             self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
-        # One accelerometer bias along x: the x observer's (learnt from the bottom flow) while there is one;
-        # without it the front range observer's own bias state, which the sonar corrects (modes
-        # 2 and 3). Not shared, the speed loop pushed with a bias only one of them knew, and the
-        # Fig. 5 hover in mode 2 drifted 0.30 m.
         if bflow is not None:
             self.front.bias = -self.obs[0].b
         elif fresh_range(fs, now, p.sonar_timeout_s, p.sonar_max_range_m):
             self.obs[0].b = -self.front.bias
 
-        # Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front range's rate
-        # and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
-        # (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
-        # PX4Flow's output holds the body rotation its own gyro's scale error leaves in (scale x
-        # rate x distance), and the speed PID closed a loop through it and the attitude that
-        # diverged with height (a 4 % scale error rolling at 6 Hz reads 0.3 m/s at 2 m); the
-        # observer, carried by the IMU between readings, passes a fraction of that. In the alarm
-        # modes nothing in Table I measures them: the paper fills in zero, which leaves a moving
-        # vehicle coasting on (its speed loop sees no error to brake on); the observers carry the
-        # last speed on with the IMU instead, so the loop brakes, and the horizontal sonars' range
-        # rates correct them where they hear a wall (``_range_rate_speeds``).
-        ox, oy, oz = self.obs
+    def _horizontal_speeds(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus,
+                           bflow, fflow) -> tuple[float, float]:
+        """Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front range's
+        rate and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
+        (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
+        PX4Flow's output holds the body rotation its own gyro's scale error leaves in (scale x
+        rate x distance), and the speed PID closed a loop through it and the attitude that
+        diverged with height (a 4 % scale error rolling at 6 Hz reads 0.3 m/s at 2 m); the
+        observer, carried by the IMU between readings, passes a fraction of that. In the alarm
+        modes nothing in Table I measures them: the paper fills in zero, which leaves a moving
+        vehicle coasting on (its speed loop sees no error to brake on); the observers carry the
+        last speed on with the IMU instead, so the loop brakes, and the horizontal sonars' range
+        rates correct them where they hear a wall (``SonarRangeRates.correct``)."""
+        p = self.p
+        ox, oy, _ = self.obs
         noise = p.speed_noise_m_s
         if feeds.vx is Source.BOTTOM_FLOW:
             assert bflow is not None
@@ -254,19 +288,32 @@ class MAVStateUpdater:
                 oy.correct(fflow.vy_m_s, noise)
         else:
             self.rates.correct(now, self._yaw, self.obs)
-        vx, vy = ox.v, oy.v
-        if self._yaw is not None:
-            self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
+        return ox.v, oy.v
 
-        # Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: front flow;
-        # mode -2: the alarm value, Table I "i"). Vertical speed: front flow, else derivative.
-        vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
-        # Each range sensor within its range: below the bottom sonar's clamp zone the TeraRanger,
-        # which reads down to 0.20 m, measures the height (the sonar reads 0.30 m there whether
-        # the vehicle hovers 0.3 m up or stands on the floor, and a landing that hopped after a
-        # battery sag took the hop's top, 0.21 m above the floor, for the touchdown and fell from
-        # it at 0.95 m/s: campaign seed 113 e1766). ``height_floor`` is the height below which the
-        # measuring sensor's reading is its clamp within its noise (the flight machine's "down").
+    def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
+        """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
+        a brief loss of every range sensor is not yet a lost reference. Descending at once, a
+        vehicle that came to rest blind beside a box edge brought its rotors onto that edge
+        within the 2.9 s the sensors were silent (safety campaign, seed 5 e1805)."""
+        if mode >= 0:
+            self._alarm_since = None
+        elif self._alarm_since is None:
+            self._alarm_since = now
+        alarm_s = 0.0 if self._alarm_since is None else now - self._alarm_since
+        return self.p.alarm_climb_m_s if mode < 0 and alarm_s >= self.p.alarm_descent_delay_s else 0.0
+
+    def _height(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus, az: float,
+                vz_flow: float | None, climb: float) -> float | None:
+        """Height: bottom PX4Flow sonar, else TeraRanger, else integration (mode 3: the front
+        flow's vz; mode -2: the alarm value, Table I "i"). Returns the height below which the
+        measuring sensor's reading is its clamp within its noise (the flight machine's "down").
+
+        Each range sensor within its range: below the bottom sonar's clamp zone the TeraRanger,
+        which reads down to 0.20 m, measures the height (the sonar reads 0.30 m there whether
+        the vehicle hovers 0.3 m up or stands on the floor, and a landing that hopped after a
+        battery sag took the hop's top, 0.21 m above the floor, for the touchdown and fell from
+        it at 0.95 m/s: campaign seed 113 e1766)."""
+        p = self.p
         source, latency, height_floor = None, 0.0, None
         if feeds.height is Source.BOTTOM_SONAR:
             source, latency, height_floor = m.bottom_sonar, p.sonar_latency_s, SONAR_FLOOR_M
@@ -274,61 +321,42 @@ class MAVStateUpdater:
                 source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
         elif feeds.height is Source.TERARANGER:
             source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
-        # "+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
-        # a brief loss of every range sensor is not yet a lost reference. Descending at once, a
-        # vehicle that came to rest blind beside a box edge brought its rotors onto that edge
-        # within the 2.9 s the sensors were silent (safety campaign, seed 5 e1805).
-        if mode >= 0:
-            self._alarm_since = None
-        elif self._alarm_since is None:
-            self._alarm_since = now
-        alarm_s = 0.0 if self._alarm_since is None else now - self._alarm_since
-        climb = p.alarm_climb_m_s if mode < 0 and alarm_s >= p.alarm_descent_delay_s else 0.0
         if source is None and vz_flow is None:
             self.height.propagate(now, rate=climb)
         else:
             self.height.propagate(now, az, vz_flow)
         if source is not None and self._ledger.new("height", source.stamp_s):
             self.height.update(source.range_m, source.stamp_s - latency)  # type: ignore[arg-type]
+        return height_floor
 
-        # "+val." (Table I): the alarm modes report a climb so that the speed loop descends. Filled
-        # in alone, a constant +val is an error the loop never removes: it descended faster and
-        # faster (every range sensor lost, 0.4-0.8 m/s into a coaming below). The val is added to
-        # the vertical observer's speed instead (carried on with the IMU), so the loop settles at
-        # a steady descent of val. Mode -1 still has the TeraRanger's rate.
-        # The front flow's vz is a measurement of the vertical observer; without it, the height
-        # observer's rate (Table I's derivative) is, but one that corrects the speed and not the
-        # bias: that rate is itself the IMU's integral corrected by a 10 Hz range, with the IMU's
-        # errors in it (taken as a bias measurement, it walked the bias to -0.2 m/s^2 over a
-        # climb, and the carried alarm descent sped up to 0.67 m/s). In mode -2 the speed is
-        # carried on with the IMU and relaxes towards zero at ``alarm_vz_leak_m_s2``: the
-        # vertical bias a short floor calibration leaves (~0.02 m/s^2) is unobservable without a
-        # vertical flow, and the loop, holding the carried speed at -val, turned it into a
-        # descent that slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent).
+    def _vertical_speed(self, feeds: Feeds, vz_flow: float | None, climb: float, dt: float) -> float:
+        """Vertical speed (Table I): the front flow's, else the height's derivative, plus "+val."
+        in the alarm modes.
+
+        "+val." makes the speed loop descend. Filled in alone, a constant +val is an error the
+        loop never removes: it descended faster and faster (every range sensor lost, 0.4-0.8 m/s
+        into a coaming below). The val is added to the vertical observer's speed instead (carried
+        on with the IMU), so the loop settles at a steady descent of val. Mode -1 still has the
+        TeraRanger's rate. The front flow's vz is a measurement of the vertical observer; without
+        it, the height observer's rate (Table I's derivative) is, but one that corrects the speed
+        and not the bias: that rate is itself the IMU's integral corrected by a 10 Hz range, with
+        the IMU's errors in it (taken as a bias measurement, it walked the bias to -0.2 m/s^2 over
+        a climb, and the carried alarm descent sped up to 0.67 m/s). In mode -2 the speed is
+        carried on with the IMU and relaxes towards zero at ``alarm_vz_leak_m_s2``: the vertical
+        bias a short floor calibration leaves (~0.02 m/s^2) is unobservable without a vertical
+        flow, and the loop, holding the carried speed at -val, turned it into a descent that
+        slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent)."""
+        oz, noise = self.obs[2], self.p.speed_noise_m_s
         if vz_flow is not None:
             oz.correct(vz_flow, noise)
         elif feeds.vz in (Source.HEIGHT_RATE, Source.HEIGHT_RATE_AND_VAL):
             oz.correct(self.height.rate_m_s, noise, learn_bias=False)
         if feeds.vz is Source.HEIGHT_RATE_AND_VAL:
-            vz = self.height.rate_m_s + climb
-        elif feeds.vz is Source.CARRIED_AND_VAL:
-            oz.v -= math.copysign(min(abs(oz.v), p.alarm_vz_leak_m_s2 * dt), oz.v)
-            vz = oz.v + climb
-        else:
-            vz = vz_flow if vz_flow is not None else self.height.rate_m_s
-
-        self.rates.note_speed(now, vx, vy)
-        est = StateEstimate(
-            height_m=self.height.height_m,
-            height_floor_m=height_floor,
-            altitude_m=self.height.altitude_m,
-            vx_m_s=vx,
-            vy_m_s=vy,
-            vz_m_s=vz,
-            mode=mode,
-            odometry=None if self._yaw is None else (self.memory.x, self.memory.y, self._yaw),
-        )
-        return est, self.clearances.update(now, m, est, self.front.value, self.rates.rates, self._yaw)
+            return self.height.rate_m_s + climb
+        if feeds.vz is Source.CARRIED_AND_VAL:
+            oz.v -= math.copysign(min(abs(oz.v), self.p.alarm_vz_leak_m_s2 * dt), oz.v)
+            return oz.v + climb
+        return vz_flow if vz_flow is not None else self.height.rate_m_s
 
     def _flow_to_heading(self, roll: float, pitch: float, bflow, fflow):
         """The PX4Flow units measure in the body frame; the estimate is in the heading frame.
