@@ -15,6 +15,8 @@ sweeps, none of them here):
   2048 px, 5 passes of 33 frames (seeds 5-12);
 - walls/ photo 7 twice (seeds 13, 14), same path;
 - four photos at their own 1200 px, 3 passes of 16 (136, 197, 213, 85; seeds 15-18);
+- the last three walls/ photos no sweep used, with plain grey paint beside their rust (88, 90, 91;
+  seeds 19, 20, 23; added 2026-11-29), the centre square at 2048 px, 5 passes of 33;
 - CrackForest's 37 unlabeled road images tiled into a 2048 px wall (seeds 21, 22).
 
 Most of them are texture-poor (the sweep switches to equalised detection); docs/mosaic.md and
@@ -47,6 +49,7 @@ FOCAL_PX = 618.0
 PHOTO_SWEEPS = [(n, 5 + k, 2048, 5, 33) for k, n in enumerate((130, 143, 173, 196, 210, 257, 62, 87))] + [
     (7, 13, 2048, 5, 33), (7, 14, 2048, 5, 33),
     (136, 15, 1200, 3, 16), (197, 16, 1200, 3, 16), (213, 17, 1200, 3, 16), (85, 18, 1200, 3, 16),
+    (88, 19, 2048, 5, 33), (90, 20, 2048, 5, 33), (91, 23, 2048, 5, 33),  # added 2026-11-29: plain grey paint
 ]
 TILE_SEEDS = (21, 22)
 
