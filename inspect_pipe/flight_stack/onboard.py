@@ -145,9 +145,10 @@ class OnboardStack:
             # In the alarm modes the vertical speed is the IMU-carried speed plus "+val", a real
             # speed error, so the vertical integrator keeps working: frozen, it could not make up
             # a thrust loss that began just before (safety campaign: battery sag, then every range
-            # sensor lost: sank faster and faster onto a coaming). XY integrators stay frozen.
+            # sensor lost: sank faster and faster onto a coaming). The XY trims take nothing and
+            # relax (``FlightController.update``).
             setpoint = ctrl.update(
-                cmd, est, dt, allow_height_hold=not alarm, freeze_xy_integrators=alarm, accel_measured=accel,
+                cmd, est, dt, allow_height_hold=not alarm, relax_xy_integrators=alarm, accel_measured=accel,
             )
         elif state is FlightState.DESCENDING:
             # Behaviours still act on X and Y (user movements, collision prevention).

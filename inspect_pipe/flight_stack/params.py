@@ -171,7 +171,10 @@ class BehaviorParams:
 class ControlParams:
     tick_hz: float = param(50.0, 10.0, 500.0, "Hz", "rate of estimation, behaviours and control")
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
-    speed_ki_1_s2: float = param(0.6, 0.0, 20.0, "1/s^2", "XY speed PID integral: the trim against drag and wind the feed-forward misses")
+    speed_ki_1_s2: float = param(
+        3.0, 0.0, 20.0, "1/s^2", "XY speed PID integral, on the speed's deviation from the command's reference model: "
+        "the trim against drag and the air's slowly varying push that the feed-forward and the disturbance observers miss"
+    )
     vz_unwind_factor: float = param(
         5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
         "speed error above vz_unwind_threshold_m_s (the trim a battery sag left behind)"
