@@ -117,3 +117,21 @@ def test_every_parameter_is_declared_with_unit_bounds_and_a_reason():
 
     doc = " ".join((Path(__file__).resolve().parents[2] / "docs" / "flight.md").read_text().split())
     assert f"reason ({len(rows)} of them" in doc
+
+
+def test_inspection_passes_hold_the_paper_speed_on_other_seeds_against_the_air_disturbance():
+    # GIVEN the Fig. 7 sweep flown with four seeds never used while tuning (the simulator's slowly
+    # varying air disturbance differs with the seed; with ki 0.6 on the raw speed error 3 of these
+    # 12 lateral passes missed 0.20 +- 0.01, one at 0.219 m/s)
+    from pathlib import Path
+
+    doc = yaml.safe_load((Path(__file__).resolve().parents[2] / "scenarios" / "fig7_inspection_sweep.yaml").read_text())
+    lateral = []
+    for seed in (233, 234, 235, 236):
+        ticks = []
+        run_scenario(parse_scenario({**doc, "seed": seed}), on_tick=ticks.append)
+        for t0, t1 in ((10.0, 15.5), (23.0, 26.5), (33.0, 35.5)):
+            lateral.append(abs(statistics.fmean(r.vel_true[1] for r in ticks if t0 <= r.t <= t1)))
+    # THEN every lateral pass is within 0.02 of 0.20 m/s and at most one misses 0.01
+    assert all(abs(v - 0.2) <= 0.02 for v in lateral), lateral
+    assert sum(abs(v - 0.2) > 0.01 for v in lateral) <= 1, lateral
