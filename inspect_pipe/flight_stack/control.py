@@ -214,9 +214,9 @@ class FlightController:
         freeze_xy = freeze_integrators or freeze_xy_integrators
         # Drag feed-forward: the trim that holds a commanded speed against rotor drag comes from
         # the command, not from the integrators, so it vanishes the moment the command drops to
-        # zero. Integrated, it stayed behind after a stop (at the ki of 0.6 /s^2 it then had, it took seconds to unwind) and
-        # crept the vehicle past the stop line at a wall (safety campaign: link-loss "hover"
-        # 2 s late while the repulsion pushed it back out, overshoot).
+        # zero. Integrated, it stayed behind after a stop (at the ki of 0.6 /s^2 it then had, it
+        # took seconds to unwind) and crept the vehicle past the stop line at a wall (safety
+        # campaign: link-loss "hover" 2 s late while the repulsion pushed it back out, overshoot).
         ff = p.speed_drag_ff_1_s
         # The XY integrators take the speed's deviation from a reference model of the command (a
         # first-order lag with the P term's time constant), as the vertical one does below: a
