@@ -270,3 +270,21 @@ def test_impact_detector_ignores_rotor_vibration_but_not_the_floors_jolt():
     for _ in range(200):
         calm.update(rng.gauss(0.0, 0.1), airborne=True)
     assert calm.update(3.2, airborne=True)
+
+
+def test_xy_integrators_follow_the_command_model_not_the_step_and_relax_while_blind():
+    p = ControlParams()
+    # GIVEN a vehicle at rest commanded 0.5 m/s forward: the step is the P term's
+    c = FlightController()
+    c.update(SpeedCommand(0.5), _est(), 0.02)
+    # THEN the integrator took only the deviation from the command's model (0.5 x kp x dt of it),
+    # not the whole 0.5 m/s error
+    assert c.pid_vx.integral == pytest.approx(p.speed_ki_1_s2 * (0.5 * p.speed_kp_1_s * 0.02) * 0.02)
+    # GIVEN a trim held against a steady push WHEN nothing measures the speed (an alarm mode)
+    c.pid_vx.integral = 0.2
+    for _ in range(50):  # 1 s
+        c.update(SpeedCommand(), _est(), 0.02, relax_xy_integrators=True)
+    # THEN it relaxes at the rate the integrator builds (about exp(-ki/kp x 1 s)) and takes nothing
+    expected = 0.2 * (1.0 - p.speed_ki_1_s2 / p.speed_kp_1_s * 0.02) ** 50
+    assert c.pid_vx.integral == pytest.approx(expected, rel=1e-9)
+    assert c.pid_vx.integral < 0.1
