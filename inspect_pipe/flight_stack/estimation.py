@@ -8,7 +8,7 @@ the front range are :class:`RangeObserver` s (the height one tells floor steps f
 -2) fill the missing vertical state with a positive speed, so that the speed controllers make the
 vehicle descend; their horizontal speed, zero in the paper, is here the observers' speed carried
 on with the IMU and corrected by the horizontal sonars' range rates where they hear a wall
-(``_range_rate_speeds``).
+(``range_rates.SonarRangeRates.correct``).
 """
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ class Feeds:
 
 #: Table I, mode by mode: which measurement feeds which state (docs/flight.md). The paper's alarm
 #: modes (-1, -2) set vx = vy = 0; here the speed observers carry the speeds on with the IMU and the
-#: horizontal sonars' range rates correct them where they hear a wall (``_range_rate_speeds``).
+#: horizontal sonars' range rates correct them where they hear a wall (``range_rates.SonarRangeRates.correct``).
 TABLE_I: dict[EstimationMode, Feeds] = {
     EstimationMode.BOTTOM: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.HEIGHT_RATE),
     EstimationMode.BOTTOM_FRONT: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.FRONT_FLOW),

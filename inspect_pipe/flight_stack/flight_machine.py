@@ -114,8 +114,8 @@ class FlightMachine:
             # TeraRanger): a jolt above flying_height_m is not the floor (a vibration fault's
             # first spikes at 3.5 m ramped the thrust down in mid-air: campaign seed 137 e145).
             # Mode -2 and mode 3 have no height to test a jolt by, but the last measured one
-            # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` (1.2 m/s) from that
-            # height could reach the floor is not the floor (every range sensor lost at 2.06 m,
+            # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` (1.2 m/s)
+            # from that height could reach the floor is not the floor (every range sensor lost at 2.06 m,
             # a vibration fault's first spikes 0.7 s later: the ramp-down began there and the
             # vehicle fell at 4 m/s; found by pairing fault classes by hand, 2026-11-28).
             high = est.mode == EstimationMode.ALARM_TOF and est.height_m >= p.flying_height_m
