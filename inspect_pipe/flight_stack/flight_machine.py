@@ -134,7 +134,15 @@ class FlightMachine:
             # estimator says which sensor measures it: ``StateEstimate.height_floor_m``); with no
             # measured height, the sonar's.
             down_m = est.height_floor_m if est.height_floor_m is not None else SONAR_FLOOR_M
-            on_ground = (est.height_m <= down_m and abs(est.vz_m_s) < 0.15) or ev.impact
+            at_floor = est.height_m <= down_m
+            # The jolt is the floor only where no height is measured, or where the measured one is at
+            # its floor too (fresh campaign seed 223 e311: a vibration fault that began in the descent
+            # gave a spike at 0.45 m, 0.08 m above the floor by the sonar; the thrust ramped down there
+            # and the vehicle hit the floor at 1.2 m/s). A true touchdown away from that reading is
+            # still found by the height and speed at rest, ``touchdown_confirm_s`` later.
+            measured = not unmeasured or est.mode == EstimationMode.ALARM_TOF
+            impact = ev.impact and (at_floor or not measured)
+            on_ground = (at_floor and abs(est.vz_m_s) < 0.15) or impact
             # The time-out stands in for a touchdown the sensors cannot confirm; with a valid
             # height well above the floor, or still descending, the vehicle is not down (safety campaign: a battery sag
             # ended mid-landing, the vehicle climbed back to 1 m, the time-out cut the thrust
@@ -146,7 +154,7 @@ class FlightMachine:
             # battery sag's recovery bounced the vehicle through 0.35 m with zero speed; the ramp
             # began and it fell from 0.57 m). A vehicle back above 0.5 m, or rising at more than
             # 0.2 m/s (a battery sag ending after touchdown), is not down.
-            if on_ground and not ev.impact:
+            if on_ground and not impact:
                 self._ground_s = self._ground_s + dt
             else:
                 self._ground_s = 0.0
@@ -158,7 +166,7 @@ class FlightMachine:
             # floor's jolt, is a touchdown then (safety campaign: a battery sag ended at touchdown,
             # the vehicle hopped, the ramp began at the hop's top, 0.23 m up, and it fell at 1 m/s).
             confirm_s = p.touchdown_confirm_s * (3.0 if self._bounced else 1.0)
-            if self.touchdown_s is None and (self._ground_s >= confirm_s or ev.impact or timed_out):
+            if self.touchdown_s is None and (self._ground_s >= confirm_s or impact or timed_out):
                 self.touchdown_s = now
             if self.touchdown_s is not None and now - self.touchdown_s >= p.landing_ramp_s:
                 self._go(FlightState.LANDED, now)
