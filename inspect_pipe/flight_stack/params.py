@@ -210,6 +210,11 @@ class ControlParams:
         "(g x 0.6 deg: 5 % of a/g at 2 m/s^2) is left to the integrators; only the excess is a disturbance "
         "(tried on the paper scenarios: 0.17 drifted Fig. 5 mode 3 by 0.251 m, 0.1: 0.240 m, sweep 0.199/0.206 m/s)"
     )
+    accel_observer_noise_sigma: float = param(
+        3.0, 0.0, 10.0, "sigma", "horizontal disturbance observers: a push within this many standard deviations of "
+        "what the IMU's own noise gives them is left out too (the noise measured in flight: rotor vibration of 1.4 "
+        "m/s^2 a tick made them push 0.3-0.7 m/s^2 at random, unseen in an alarm mode: fresh campaign seed 239 e989)"
+    )
     accel_observer_lag_s: float = param(
         0.06, 0.0, 1.0, "s", "disturbance observers: attitude and motor lag between set-point and acceleration"
     )

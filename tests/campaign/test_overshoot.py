@@ -64,6 +64,10 @@ HONEST_CASES = [
     (173, 163, "campaign_s173_e00163_push_yaw.yaml", 0.108, 0.10),
     (173, 1452, "campaign_s173_e01452_wall_push.yaml", 0.101, 0.10),
     (173, 1761, "campaign_s173_e01761_push_yaw.yaml", 0.112, 0.10),
+    # every range sensor lost at the line under rotor vibration: the horizontal disturbance observers
+    # turned the IMU's noise into pushes nothing measured (session 22: a push within
+    # accel_observer_noise_sigma of the IMU's measured noise is left out)
+    (239, 989, "campaign_s239_e00989_corner_push.yaml", 0.369, 0.10),
 ]
 
 

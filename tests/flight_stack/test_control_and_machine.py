@@ -212,6 +212,41 @@ def test_disturbance_observer_learns_the_accelerometer_bias_on_the_floor_and_mak
     assert out == 1.5
 
 
+def test_horizontal_disturbance_observer_leaves_out_what_the_imus_own_noise_shows():
+    import random
+
+    # GIVEN a hovering vehicle whose IMU carries rotor vibration (1.4 m/s^2 a tick, the fault's
+    # rate 0.47: fresh campaign seed 239 e989), with nothing pushing it
+    def tilt(noise: float, push: float, params: ControlParams) -> list[float]:
+        rng = random.Random(3)
+        c = FlightController(params)
+        out, a = [], 0.0  # the set-point's acceleration reaches the vehicle through a 60 ms lag
+        for _ in range(500):
+            sp = c.update(SpeedCommand(0.0, 0.0, 0.0, 0.0), _est(), 0.02, relax_xy_integrators=True,
+                          accel_measured=(a + push + rng.gauss(0.0, noise), 0.0, 0.0))
+            a += (G * math.tan(sp.pitch_rad) - a) * 0.02 / 0.06
+            out.append(G * math.tan(sp.pitch_rad))
+        return out[100:]
+
+    shaken = tilt(1.4, 0.0, ControlParams())
+    fixed_band = tilt(1.4, 0.0, ControlParams(accel_observer_noise_sigma=0.0))
+    # THEN the observer's noise, measured in flight, is not taken for a push: it tilts the vehicle
+    # 0.05 m/s^2 rms at most (none of it here), where the fixed band alone passed 0.15 m/s^2 of it
+    rms = lambda xs: (sum(x * x for x in xs) / len(xs)) ** 0.5  # noqa: E731
+    assert rms(shaken) < 0.05 and rms(fixed_band) > 0.1
+    # AND its own noise estimate is the white noise's through its low-pass, within 15 %
+    c = FlightController()
+    rng = random.Random(4)
+    for _ in range(300):
+        c.update(SpeedCommand(0.0, 0.0, 0.0, 0.0), _est(), 0.02, accel_measured=(rng.gauss(0.0, 1.4), 0.0, 0.0))
+    expected = 1.4 * (0.02 / (2 * c.p.accel_observer_tau_s)) ** 0.5
+    assert c.obs_x.value_noise(0.02) == pytest.approx(expected, rel=0.15)
+    # AND a steady 0.8 m/s^2 push (wind) on a quiet IMU is still made up (a level vehicle's
+    # observer pushes back the wind's 0.8 less the fixed band)
+    windy = tilt(0.05, -0.8, ControlParams())
+    assert sum(windy[-50:]) / 50 == pytest.approx(0.8 - ControlParams().accel_observer_xy_band_m_s2, abs=0.1)
+
+
 def _vertical_step(c: FlightController, vz_cmd: float, seconds: float, *, trim: float = 0.5, lag_s: float = 0.06):
     """A vehicle whose vertical acceleration follows the command through a first-order lag and
     which needs ``trim`` m/s^2 more than nominal to hover (mass error): returns its speeds."""
