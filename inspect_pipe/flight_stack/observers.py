@@ -96,20 +96,27 @@ class SpeedObserver:
     noise. An innovation further than ``gate`` standard deviations is not used (a new surface in
     a sonar's beam, a flow glitch). With no measurement used (the alarm modes, rejections) the
     speed is carried on with the IMU and its variance grows, so the gate widens until a
-    measurement consistent with that uncertainty is taken again.
+    measurement consistent with that uncertainty is taken again. The gate can also close for good:
+    after a blind spell the speed loop steers the vehicle by the carried speed, so the true speed
+    runs away from it faster than the variance grows, and every measurement is refused (fresh
+    campaign seed 251 e1071: the bottom flow read -0.3 to -1.4 m/s for six seconds, the estimate
+    stayed at +0.1 to +0.6, the vehicle flew backwards into the wall at 2 m/s). So
+    ``RESTART_AFTER`` measurements refused in a row restart the speed at the last of them.
 
     ``accel_noise`` (m/s^2/sqrt(Hz)) and ``bias_walk`` (m/s^2/sqrt(s)) are the process noise
     densities; the per-measurement noise comes with each :meth:`correct`.
     """
 
     V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
+    RESTART_AFTER = 5  # measurements refused in a row (half a second of 10 Hz flow or range rates)
 
-    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate")
+    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused")
 
     def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
         self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
         self.v = self.b = 0.0
         self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
+        self.refused = 0
 
     def predict(self, accel: float, dt: float) -> None:
         if dt <= 0.0:
@@ -130,7 +137,12 @@ class SpeedObserver:
         y = z - (self.v if then is None else then)
         s = self.p00 + noise * noise
         if y * y > self.gate * self.gate * s:
-            return False
+            self.refused += 1
+            if self.refused < self.RESTART_AFTER:
+                return False
+            self.restart(self.v + y)  # the measurement, brought to now
+            return True
+        self.refused = 0
         k0 = self.p00 / s
         self.v += k0 * y
         p00, p01 = self.p00, self.p01
@@ -145,6 +157,7 @@ class SpeedObserver:
     def restart(self, v: float) -> None:
         """Restart the speed at ``v`` (its variance too); the bias is kept."""
         self.v, self.p00, self.p01 = v, self.V0, 0.0
+        self.refused = 0
 
 
 class HeightEstimator:

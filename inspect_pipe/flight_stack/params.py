@@ -172,8 +172,9 @@ class ControlParams:
     tick_hz: float = param(50.0, 10.0, 500.0, "Hz", "rate of estimation, behaviours and control")
     speed_kp_1_s: float = param(2.2, 0.0, 20.0, "1/s", "XY speed PID: m/s^2 per m/s")
     speed_ki_1_s2: float = param(
-        3.0, 0.0, 20.0, "1/s^2", "XY speed PID integral, on the speed's deviation from the command's reference model: "
-        "the trim against drag and the air's slowly varying push that the feed-forward and the disturbance observers miss"
+        3.0, 0.0, 20.0, "1/s^2", "speed PIDs' integral (XY and vertical), on the speed's deviation from the command's "
+        "reference model: horizontally the trim against drag and the air's slowly varying push that the feed-forward "
+        "and the disturbance observers miss, vertically the hover trim (mass and thrust error)"
     )
     vz_unwind_factor: float = param(
         5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
@@ -189,7 +190,6 @@ class ControlParams:
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
     )
     vz_kp_1_s: float = param(3.0, 0.0, 20.0, "1/s", "vertical speed PID: m/s^2 per m/s")
-    vz_ki_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "vertical speed PID integral: the hover trim (mass and thrust error)")
     height_kp_1_s2: float = param(3.0, 0.0, 20.0, "1/s^2", "height PID: m/s^2 per m")
     height_ki_1_s3: float = param(0.8, 0.0, 20.0, "1/s^3", "height PID integral: the hover trim while holding height")
     height_kd_1_s: float = param(2.8, 0.0, 20.0, "1/s", "height PID damping on the measured vertical speed")

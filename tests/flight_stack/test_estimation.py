@@ -550,6 +550,30 @@ def test_speed_observer_learns_the_accelerometer_bias_and_gates_an_outlier():
     assert obs.correct(0.25, 0.1)
 
 
+def test_a_speed_observer_whose_gate_refuses_every_reading_restarts_at_them():
+    # GIVEN a confident observer (20 s of 0.2 m/s flow) and then a flow that says the vehicle is
+    # flying the other way, steadily (after a blind spell the carried speed was 0.8 m/s off and the
+    # vehicle ran away from it: fresh campaign seed 251 e1071)
+    rng = random.Random(5)
+    obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
+    for _ in range(1000):
+        obs.predict(0.0, 0.02)
+        obs.correct(0.2 + rng.gauss(0.0, 0.1), 0.1)
+    bias = obs.b
+    used = []
+    for k in range(RESTARTS := SpeedObserver.RESTART_AFTER):
+        obs.predict(0.0, 0.1)
+        used.append(obs.correct(-0.6 - 0.01 * k, 0.1))
+    # THEN the first readings are refused as outliers, and the last of a full row of them is taken
+    # whole: the speed restarts there (its variance with it), the bias learnt is kept
+    assert used == [False] * (RESTARTS - 1) + [True]
+    assert obs.v == pytest.approx(-0.6 - 0.01 * (RESTARTS - 1))
+    assert obs.p00 == SpeedObserver.V0 and obs.b == bias
+    # AND a single glitch among good readings is still refused, and its count starts again
+    obs.correct(-0.64, 0.1)
+    assert not obs.correct(3.0, 0.1) and obs.correct(-0.65, 0.1) and obs.refused == 0
+
+
 def test_a_measurement_that_shares_the_imus_errors_corrects_the_speed_but_not_the_bias():
     obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
     for _ in range(200):
