@@ -85,6 +85,10 @@ class AlignParams:
     # 12: 4.16 px max (goal 4), 20: 3.83, all 40 in one fit: 3.21 at about twice the CPU
     pose_points_first: int = 20
     distortion: bool = True  # refine k1, k2 when no calibration is given
+    odometry_prior: bool = True  # the vehicle's odometry, where the source has it, ties consecutive frames' positions
+    # the odometry is used only where one similarity maps its displacements onto the start layout's within this share
+    # of their variance (axes or scale that contradict the images: the prior would bend the sweep)
+    odometry_max_unexplained: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,31 @@ class Correspondences:
     def within(self, frames) -> "Correspondences":
         keep = np.isin(self.fi, list(frames)) & np.isin(self.fj, list(frames))
         return Correspondences(self.fi[keep], self.fj[keep], self.p[keep], self.q[keep])
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Where the vehicle's odometry put each frame's centre on the wall (``MotionPrior.centre_px``: pixels of a
+    wall-aligned frame at the camera's scale), and how far a displacement between two frames can be trusted
+    (1 sigma): ``noise_px`` plus ``drift`` of the path flown between them."""
+
+    centre_px: dict[int, np.ndarray]
+    noise_px: float
+    drift: float
+
+
+@dataclass(frozen=True)
+class _PosePrior:
+    """The odometry as residuals of the pose adjustment: for consecutive frames (columns ``ii``, ``jj``), the
+    displacement of the camera centre's foot on the wall against the odometry's, mapped into wall units
+    (``target``), times ``weight`` (the pairs' noise over the odometry's, so both weigh as their noise says)."""
+
+    ii: np.ndarray
+    jj: np.ndarray
+    target: np.ndarray  # (n, 2) wall units
+    weight: np.ndarray  # (n,)
+    scale: float  # wall units per odometry pixel (the similarity's)
+    rotation_deg: float
 
 
 @dataclass(frozen=True)
@@ -133,6 +162,7 @@ class AlignResult:
     model: str = "homography"  # "pose" or "homography"
     camera: Camera | None = None  # pose model: the intrinsics found (or given)
     note: str = ""  # why the pose model was not kept, when it was tried
+    odometry: dict | None = None  # pose model with odometry: how it was used (:func:`odometry_record`)
 
 
 # ----- camera and frame models (pure, vectorised) -----
@@ -200,6 +230,17 @@ def _pair_residuals(A_i, Ainv_i, A_j, Ainv_j, cam: Camera, corr: Correspondences
     return np.concatenate([_transfer(Ainv_i, A_j, cam, corr.p) - corr.q, _transfer(Ainv_j, A_i, cam, corr.q) - corr.p], axis=1)
 
 
+def camera_feet(A: np.ndarray) -> np.ndarray:
+    """(n, 2): the point of the wall straight ahead of each camera (the foot of its centre), in wall units,
+    from the wall -> normalised image maps ``A = [r1 r2 t]`` (centre ``-R^T t``; the odometry measures it)."""
+    return -np.stack([(A[:, :, 0] * A[:, :, 2]).sum(1), (A[:, :, 1] * A[:, :, 2]).sum(1)], axis=1)
+
+
+def _prior_residuals(feet_i: np.ndarray, feet_j: np.ndarray, prior: _PosePrior) -> np.ndarray:
+    """(n, 2): the feet's displacement against the odometry's, weighted."""
+    return (feet_j - feet_i - prior.target) * prior.weight[:, None]
+
+
 # ----- the problem: parameter vector <-> frames and camera -----
 
 
@@ -229,50 +270,77 @@ class _Problem:
         cam = Camera(vals.get("f", self.cam0.f), self.cam0.cx, self.cam0.cy, vals.get("k1", self.cam0.k1), vals.get("k2", self.cam0.k2))
         return P, cam
 
+    prior: _PosePrior | None = None  # the odometry's rows (pose model only)
+
+    @property
+    def n_pair_residuals(self) -> int:
+        """The residual vector's first entries are the correspondences' (4 each); the odometry's follow (2 each)."""
+        return 4 * len(self.ii)
+
     def residuals(self, P: np.ndarray, cam: Camera) -> np.ndarray:
         A = wall_to_image(self.model, P, self.R0)
         Ainv = np.linalg.inv(A)
-        return _pair_residuals(A[self.ii], Ainv[self.ii], A[self.jj], Ainv[self.jj], cam, self.corr)
+        r = _pair_residuals(A[self.ii], Ainv[self.ii], A[self.jj], Ainv[self.jj], cam, self.corr).ravel()
+        if self.prior is None:
+            return r
+        feet = camera_feet(A)
+        return np.r_[r, _prior_residuals(feet[self.prior.ii], feet[self.prior.jj], self.prior).ravel()]
 
-    def _structure(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-        """The Jacobian's sparsity, the same at every evaluation: a row of correspondence ``n`` depends on the
-        ``k`` parameters of frames ``ii[n]`` and ``jj[n]`` and on the free intrinsics. Returns (mask over the
-        (N, 4, 2k + m) derivative block of the free columns, their column indices, row pointers, free count)."""
-        if "structure" not in self.cache:
-            n, k, N, m = len(self.frames), self.k, len(self.ii), len(self.intrinsics)
-            cols = np.concatenate([self.ii[:, None] * k + np.arange(k), self.jj[:, None] * k + np.arange(k),
+    def _structure(self, ii: np.ndarray, jj: np.ndarray, width: int, intrinsics: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The sparsity of a block of rows, the same at every evaluation: the ``width`` residuals of entry ``n``
+        depend on the ``k`` parameters of frames ``ii[n]`` and ``jj[n]`` (and on the free intrinsics, for the
+        correspondences). Returns (mask over the (N, width, 2k + m) derivative block of the free columns,
+        their column indices, row pointers)."""
+        key = ("structure", width)
+        if key not in self.cache:
+            n, k, N, m = len(self.frames), self.k, len(ii), len(self.intrinsics) if intrinsics else 0
+            cols = np.concatenate([ii[:, None] * k + np.arange(k), jj[:, None] * k + np.arange(k),
                                    np.broadcast_to(n * k + np.arange(m), (N, m))], axis=1)
             keep = self.free[cols]
             reduced = np.cumsum(self.free) - 1
-            mask = np.broadcast_to(keep[:, None, :], (N, 4, 2 * k + m))
+            mask = np.broadcast_to(keep[:, None, :], (N, width, 2 * k + m))
             indices = np.broadcast_to(reduced[cols][:, None, :], mask.shape)[mask].astype(np.int32)
-            indptr = np.r_[0, np.cumsum(np.repeat(keep.sum(axis=1), 4))].astype(np.int32)
-            self.cache["structure"] = (mask, indices, indptr, int(self.free.sum()))
-        return self.cache["structure"]
+            indptr = np.r_[0, np.cumsum(np.repeat(keep.sum(axis=1), width))].astype(np.int32)
+            self.cache[key] = (mask, indices, indptr)
+        return self.cache[key]
 
     def jacobian(self, P: np.ndarray, cam: Camera, r0: np.ndarray) -> sp.csr_matrix:
         """Forward differences per frame role (a row depends on frames i, j and the camera only), written
-        straight into the fixed sparsity (:meth:`_structure`)."""
-        k, N = self.k, len(self.ii)
-        mask, indices, indptr, n_free = self._structure()
+        straight into the fixed sparsity (:meth:`_structure`); the odometry's rows below the correspondences'."""
+        k, N, n_free = self.k, len(self.ii), int(self.free.sum())
+        r_pairs = r0[: self.n_pair_residuals].reshape(N, 4)
+        mask, indices, indptr = self._structure(self.ii, self.jj, 4, True)
         A = wall_to_image(self.model, P, self.R0)
         Ainv = np.linalg.inv(A)
         Ai, Aj, Ai_inv, Aj_inv = A[self.ii], A[self.jj], Ainv[self.ii], Ainv[self.jj]
         block = np.empty((N, 4, 2 * k + len(self.intrinsics)))
+        pr = self.prior
+        if pr is not None:
+            feet = camera_feet(A)
+            r_prior = r0[self.n_pair_residuals:].reshape(-1, 2)
+            prior_block = np.empty((len(pr.ii), 2, 2 * k))
         for c in range(k):
             h = 1e-7 * max(1.0, float(np.abs(P[:, c]).max()))
             Pp = P.copy()
             Pp[:, c] += h
             Ap = wall_to_image(self.model, Pp, self.R0)
             Ap_inv = np.linalg.inv(Ap)
-            block[:, :, c] = (_pair_residuals(Ap[self.ii], Ap_inv[self.ii], Aj, Aj_inv, cam, self.corr) - r0) / h
-            block[:, :, k + c] = (_pair_residuals(Ai, Ai_inv, Ap[self.jj], Ap_inv[self.jj], cam, self.corr) - r0) / h
+            block[:, :, c] = (_pair_residuals(Ap[self.ii], Ap_inv[self.ii], Aj, Aj_inv, cam, self.corr) - r_pairs) / h
+            block[:, :, k + c] = (_pair_residuals(Ai, Ai_inv, Ap[self.jj], Ap_inv[self.jj], cam, self.corr) - r_pairs) / h
+            if pr is not None:
+                feet_p = camera_feet(Ap)
+                prior_block[:, :, c] = (_prior_residuals(feet_p[pr.ii], feet[pr.jj], pr) - r_prior) / h
+                prior_block[:, :, k + c] = (_prior_residuals(feet[pr.ii], feet_p[pr.jj], pr) - r_prior) / h
         for m, name in enumerate(self.intrinsics):
             val = getattr(cam, name)
             h = 1e-6 * max(1.0, abs(val)) if name == "f" else 1e-7
             camp = Camera(**{**cam.__dict__, name: val + h})
-            block[:, :, 2 * k + m] = (_pair_residuals(Ai, Ai_inv, Aj, Aj_inv, camp, self.corr) - r0) / h
-        return sp.csr_matrix((block[mask], indices, indptr), shape=(4 * N, n_free))
+            block[:, :, 2 * k + m] = (_pair_residuals(Ai, Ai_inv, Aj, Aj_inv, camp, self.corr) - r_pairs) / h
+        J = sp.csr_matrix((block[mask], indices, indptr), shape=(4 * N, n_free))
+        if pr is None:
+            return J
+        mask, indices, indptr = self._structure(pr.ii, pr.jj, 2, False)
+        return sp.vstack([J, sp.csr_matrix((prior_block[mask], indices, indptr), shape=(2 * len(pr.ii), n_free))], format="csr")
 
 
 def _preconditioner(J: sp.csr_matrix, r: np.ndarray, f_scale: float):
@@ -312,11 +380,11 @@ def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams, give_up_px: f
 
     def fun(x):
         if "x" in cache and np.array_equal(cache["x"], x):
-            return cache["r"].ravel()
+            return cache["r"]
         P, cam = prob.unpack(x, full0)
         r = prob.residuals(P, cam)
         cache["x"], cache["r"] = x.copy(), r
-        return r.ravel()
+        return r
 
     def jac(x):
         P, cam = prob.unpack(x, full0)
@@ -331,7 +399,7 @@ def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams, give_up_px: f
     total, status = 0, 0
     while True:
         sol, M = _solve_from(fun, jac, x0, params, min(params.restart_nfev, params.max_nfev - total),
-                             None if give_up_px is None else _stalled(give_up_px, params, total))
+                             None if give_up_px is None else _stalled(give_up_px, params, total, prob.n_pair_residuals))
         x0 = x0 + M(sol.x)
         total += int(sol.nfev)
         status = int(sol.status)
@@ -342,14 +410,15 @@ def _solve(prob: _Problem, full0: np.ndarray, params: AlignParams, give_up_px: f
     return P, cam, total, (status >= 0 or status == -2) and bool(np.all(np.isfinite(x0)))
 
 
-def _stalled(give_up_px: float, params: AlignParams, nfev0: int = 0):
+def _stalled(give_up_px: float, params: AlignParams, nfev0: int = 0, n_pair_residuals: int | None = None):
     """A least_squares callback that stops the adjustment once its RMS transfer error (the larger of a
-    correspondence's two) is over ``give_up_px`` and less than ``stall_progress`` better than
-    ``stall_nfev`` evaluations before: a fit that far off and that slow will not be accepted."""
+    correspondence's two; the first ``n_pair_residuals`` residuals) is over ``give_up_px`` and less than
+    ``stall_progress`` better than ``stall_nfev`` evaluations before: a fit that far off and that slow
+    will not be accepted."""
     history: list[tuple[int, float]] = []
 
     def callback(intermediate_result) -> None:  # the name scipy looks for to pass the whole result
-        r = np.asarray(intermediate_result.fun).reshape(-1, 4)
+        r = np.asarray(intermediate_result.fun)[:n_pair_residuals].reshape(-1, 4)
         rms = float(np.sqrt(np.mean(np.maximum(r[:, 0] ** 2 + r[:, 1] ** 2, r[:, 2] ** 2 + r[:, 3] ** 2))))
         nfev = nfev0 + int(intermediate_result.nfev)
         history.append((nfev, rms))
@@ -441,12 +510,69 @@ def homographies_from_poses(model_maps: np.ndarray, K: np.ndarray) -> list[np.nd
     return [_normalised(np.linalg.inv(K @ A)) for A in model_maps]
 
 
+def pose_prior(H_wall: dict[int, np.ndarray], cam: Camera, odometry: Odometry, pair_sigma_px: float,
+               params: AlignParams) -> tuple[_PosePrior | None, str]:
+    """The odometry as a prior of the pose adjustment started from ``H_wall``: the displacement between
+    consecutive frames of the group (frame order is time order) that both have an odometry position.
+
+    The odometry's frame and the wall frame of the adjustment differ by a similarity (axes, scale), fitted
+    once here, by least squares, between the odometry's displacements and the start layout's camera feet;
+    where it leaves more than ``odometry_max_unexplained`` of their variance unexplained, the odometry
+    contradicts the images and is not used (returns None and why). Each displacement's sigma is
+    ``noise_px + drift x`` the path the odometry flew between the two frames; its residual is weighted
+    by ``pair_sigma_px / sigma``, so a correspondence (whose residuals are in pixels with about the pairs'
+    RMS as noise) and the odometry each weigh as their noise says."""
+    frames = sorted(H_wall)
+    have = [f for f in frames if f in odometry.centre_px]
+    if len(have) < 3:
+        return None, "fewer than 3 frames with an odometry position"
+    col = {f: k for k, f in enumerate(frames)}
+    fi, fj = np.array(have[:-1]), np.array(have[1:])
+    track = sorted(odometry.centre_px)  # every frame the odometry placed, for the path flown between two
+    pos = np.array([odometry.centre_px[f] for f in track], float)
+    path = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))]
+    at = {f: k for k, f in enumerate(track)}
+    d_odo = np.array([odometry.centre_px[j] - odometry.centre_px[i] for i, j in zip(fi, fj)], float)
+    flown = np.array([path[at[j]] - path[at[i]] for i, j in zip(fi, fj)])
+    R0, t0 = poses_from_homographies(H_wall, cam.K)
+    feet = camera_feet(np.concatenate([R0[:, :, :2], t0[:, :, None]], axis=2))
+    ii, jj = np.array([col[f] for f in fi]), np.array([col[f] for f in fj])
+    d_img = feet[jj] - feet[ii]
+    o, c = d_odo[:, 0] + 1j * d_odo[:, 1], d_img[:, 0] + 1j * d_img[:, 1]
+    energy = float(np.sum(np.abs(c) ** 2))
+    if float(np.sum(np.abs(o) ** 2)) <= 0 or energy <= 0:
+        return None, "the odometry or the images show no motion"
+    z = complex(np.sum(c * np.conj(o)) / np.sum(np.abs(o) ** 2))
+    unexplained = float(np.sum(np.abs(c - z * o) ** 2)) / energy
+    if unexplained > params.odometry_max_unexplained:
+        return None, (f"one similarity leaves {100 * unexplained:.0f} % of the odometry's displacements unexplained "
+                      f"by the images (limit {100 * params.odometry_max_unexplained:.0f} %)")
+    target = z * o
+    sigma_wall = abs(z) * (odometry.noise_px + odometry.drift * flown)
+    weight = max(pair_sigma_px, 0.05) / sigma_wall
+    return _PosePrior(ii, jj, np.c_[target.real, target.imag], weight, abs(z), float(np.degrees(np.angle(z)))), ""
+
+
+def odometry_record(prior: _PosePrior | None, why: str, H_wall: dict[int, np.ndarray], cam: Camera, pair_sigma_px: float) -> dict:
+    """What ``mosaic.json`` says of the odometry prior: how many displacements it tied, and how far the
+    fitted poses are from them, in the odometry's sigmas (about 1 where the two agree as their noise says)."""
+    if prior is None:
+        return {"used": False, "why": why}
+    R, t = poses_from_homographies(H_wall, cam.K)
+    feet = camera_feet(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2))
+    r = _prior_residuals(feet[prior.ii], feet[prior.jj], prior) / max(pair_sigma_px, 0.05)  # in sigmas
+    dist = np.hypot(r[:, 0], r[:, 1])
+    return {"used": True, "displacements": int(len(prior.ii)), "rms_sigma": round(float(np.sqrt(np.mean(dist**2) / 2)), 3),
+            "max_sigma": round(float(dist.max()), 2), "scale": round(prior.scale, 5), "rotation_deg": round(prior.rotation_deg, 3)}
+
+
 def adjust_poses(
     H0: dict[int, np.ndarray], corr: Correspondences, cam0: Camera, *, free_focal: bool, free_distortion: bool,
-    params: AlignParams = AlignParams(), give_up_px: float | None = None,
+    params: AlignParams = AlignParams(), give_up_px: float | None = None, prior: _PosePrior | None = None,
 ) -> tuple[dict[int, np.ndarray], Camera, int, bool]:
     """Pose-model bundle adjustment from homographies ``H0`` (frame px -> a metric wall frame);
-    ``give_up_px``: stop early once stalled above that RMS (:func:`_stalled`)."""
+    ``give_up_px``: stop early once stalled above that RMS (:func:`_stalled`); ``prior``: the odometry's
+    residuals (:func:`pose_prior`, built on the same frames and wall frame)."""
     frames = sorted(H0)
     corr = corr.within(frames)
     ii, jj = _rows(frames, corr)
@@ -458,7 +584,7 @@ def adjust_poses(
     full0 = np.r_[P0.ravel(), [getattr(cam0, name) for name in intrinsics]]
     free = np.ones(full0.size, dtype=bool)
     free[[ref * 6 + 2, ref * 6 + 3, ref * 6 + 4, ref * 6 + 5]] = False  # in-plane rotation and translation
-    prob = _Problem("pose", frames, ii, jj, corr, R0, cam0, intrinsics, free)
+    prob = _Problem("pose", frames, ii, jj, corr, R0, cam0, intrinsics, free, prior=prior)
     P, cam, nfev, ok = _solve(prob, full0, params, give_up_px)
     A = wall_to_image("pose", P, R0)
     H = dict(zip(frames, homographies_from_poses(A, cam.K)))
@@ -687,12 +813,14 @@ def _start(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int,
 def fit_pose_model(
     H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], f0: float, principal: tuple[float, float],
     *, self_calibrate: bool, params: AlignParams, give_up_px: float | None = None, from_fixed_focal: bool = False,
-    distortion: tuple[float, float] = (0.0, 0.0),
-) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool]:
+    distortion: tuple[float, float] = (0.0, 0.0), odometry: Odometry | None = None, pair_sigma_px: float = 1.0,
+) -> tuple[dict[int, np.ndarray], Camera, np.ndarray, bool, dict | None]:
     """Rectify the layout with ``f0``, then bundle-adjust the pose model on a thinned set of
-    correspondences; returns (H, camera, errors of all correspondences, converged). ``distortion``
-    (k1, k2) starts the camera, held fixed unless self-calibrating. A self-calibrated
-    fit stalled above ``give_up_px`` stops there (:func:`_stalled`).
+    correspondences; returns (H, camera, errors of all correspondences, converged, the odometry's
+    record or None). ``distortion`` (k1, k2) starts the camera, held fixed unless self-calibrating. A
+    self-calibrated fit stalled above ``give_up_px`` stops there (:func:`_stalled`). ``odometry``, where
+    given (and ``params.odometry_prior``), ties consecutive frames (:func:`pose_prior`, on the rectified
+    start; ``pair_sigma_px``: the pairs' own RMS).
 
     Self-calibration starts from the chained layout ``H0``: its perspective is what finds the focal
     length (from the similarity start synth_rust_paint_sweep ended 1.01 / 8.46 px corner error, f 938,
@@ -709,21 +837,36 @@ def fit_pose_model(
     thinned = thin(corr, per_pair)
     cam = Camera(f0, *principal, *distortion)
     H_wall, _ = rectify(H0 if self_calibrate and not from_fixed_focal else _start(H0, corr, size_wh), size_wh, f0, principal)
+    use_odometry = odometry is not None and params.odometry_prior
+    prior, why = None, ""
+
+    def fixed_fit(H_wall, c, cam):
+        """A fit at the current focal length, the odometry's similarity fitted to the layout it starts from
+        (the wall frame's scale follows the focal length, so a prior built before self-calibration would
+        hold the focal length where it started)."""
+        nonlocal prior, why
+        if use_odometry:
+            prior, why = pose_prior(H_wall, cam, odometry, pair_sigma_px, params)
+        return adjust_poses(H_wall, c, cam, free_focal=False, free_distortion=False, params=fixed, prior=prior)
+
     # self-calibration converges on fewer correspondences first (with the focal length given one fit on all is cheaper)
     first = (thin(corr, params.pose_points_first) if self_calibrate and 0 < params.pose_points_first < params.pose_points_per_pair
              else None)
     if not self_calibrate or from_fixed_focal:
         if first is not None:
-            H_wall, cam, _, ok = adjust_poses(H_wall, first, cam, free_focal=False, free_distortion=False, params=fixed)
-        H_wall, cam, _, ok = adjust_poses(H_wall, thinned, cam, free_focal=False, free_distortion=False, params=fixed)
+            H_wall, cam, _, ok = fixed_fit(H_wall, first, cam)
+        H_wall, cam, _, ok = fixed_fit(H_wall, thinned, cam)
     if self_calibrate:  # along the flat valley of a free focal length, no restarts (they ended 6 px from it on synth_rust_sweep)
+        # without the odometry: its similarity, fitted at the starting focal length, would hold the focal length there
         free = replace(params, ftol=params.self_calibration_ftol, max_nfev=params.self_calibration_max_nfev,
                        restart_nfev=params.self_calibration_max_nfev)
         H_wall, cam, _, ok = adjust_poses(H_wall, first if first is not None else thinned, cam, free_focal=True,
                                           free_distortion=params.distortion, params=free, give_up_px=give_up_px)
+        prior, why = None, "not used while self-calibrating" if use_odometry else ""
         if ok and first is not None:  # the intrinsics found, the poses polished on every correspondence
-            H_wall, cam, _, ok = adjust_poses(H_wall, thinned, cam, free_focal=False, free_distortion=False, params=fixed)
-    return H_wall, cam, pose_errors(H_wall, cam, corr), ok
+            H_wall, cam, _, ok = fixed_fit(H_wall, thinned, cam)
+    record = odometry_record(prior, why, H_wall, cam, pair_sigma_px) if use_odometry else None
+    return H_wall, cam, pose_errors(H_wall, cam, corr), ok, record
 
 
 def quick_layout(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tuple[int, int], *,
@@ -738,8 +881,8 @@ def quick_layout(H0: dict[int, np.ndarray], corr: Correspondences, size_wh: tupl
     w, h = size_wh
     corr = corr.within(H0)
     quick = replace(params, pose_points_per_pair=6, max_nfev=5, pose_max_nfev=5)
-    H, _, err, ok = fit_pose_model(H0, corr, size_wh, focal_px or 1.2 * max(w, h), (w / 2, h / 2),
-                                   self_calibrate=False, params=quick)
+    H, _, err, ok, _ = fit_pose_model(H0, corr, size_wh, focal_px or 1.2 * max(w, h), (w / 2, h / 2),
+                                      self_calibrate=False, params=quick)
     pairs_rms = pairwise_rms(corr, {k: v for k, v in (pair_H or {}).items() if k[0] in H0 and k[1] in H0})
     limit = params.pose_ratio * pairs_rms + params.pose_slack_px
     return to_mosaic_frame(H, size_wh, H0) if ok and len(err) and float(np.sqrt(np.mean(err**2))) <= limit else H0
@@ -754,6 +897,7 @@ def align_group(
     principal_px: tuple[float, float] | None = None,
     pair_H: dict[tuple[int, int], np.ndarray] | None = None,
     camera: Camera | None = None,
+    odometry: Odometry | None = None,
     params: AlignParams = AlignParams(),
 ) -> AlignResult:
     """Global alignment of one connected group from its initial layout ``H0`` (frame px -> mosaic px).
@@ -766,7 +910,9 @@ def align_group(
     free homographies, and ``note`` says why.
 
     ``camera``, settled by an earlier alignment of the same sweep (``_register.align_groups``), replaces
-    ``focal_px`` and self-calibration: the pose model is fitted once, with it held fixed."""
+    ``focal_px`` and self-calibration: the pose model is fitted once, with it held fixed. ``odometry``
+    (a sweep with the vehicle's positions) ties consecutive frames in every pose fit (:func:`pose_prior`);
+    ``odometry`` of the result says how."""
     frames = sorted(H0)
     corr = corr.within(frames)
     pair_H = {k: v for k, v in (pair_H or {}).items() if k[0] in H0 and k[1] in H0}
@@ -793,9 +939,9 @@ def align_group(
                 break
             f0 = f0 or f_self or initial_focal(H0, size_wh, principal, pair_H, params)
             f_self = f0 if self_cal else None
-            H, cam, err, ok = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params,
-                                             give_up_px=give_up_px, from_fixed_focal=from_fixed,
-                                             distortion=distortion)
+            H, cam, err, ok, odo = fit_pose_model(H0, corr, size_wh, f0, principal, self_calibrate=self_cal, params=params,
+                                                  give_up_px=give_up_px, from_fixed_focal=from_fixed,
+                                                  distortion=distortion, odometry=odometry, pair_sigma_px=pairs_rms)
             rms = _rms(err, params.outlier_px)
             rms_all = float(np.sqrt(np.mean(err**2))) if len(err) else 0.0  # judged on all: a fit may leave whole pairs off
             if not ok:
@@ -808,7 +954,7 @@ def align_group(
             else:
                 # a given focal length fails where a self-calibrated one fits: it contradicts the images
                 note = given_fail and f"the focal length {focal_px:g} px contradicts the images ({given_fail}); self-calibration finds {cam.f:.0f} px"
-                return AlignResult(to_mosaic_frame(H, size_wh, H0), rms, per_pair_rms(err, corr), nfev, "pose", cam, note)
+                return AlignResult(to_mosaic_frame(H, size_wh, H0), rms, per_pair_rms(err, corr), nfev, "pose", cam, note, odo)
             if from_fixed:
                 why = f"{why} (from the fixed-focal fit: {fail.removeprefix('the pose model ')})"
             elif not self_cal:

@@ -168,6 +168,8 @@ def _model_json(group, size_wh: tuple[int, int]) -> dict:
                          "distortion_applied": _distorted(cam, size_wh)}
     if group.note:
         out["note"] = group.note
+    if group.odometry is not None:
+        out["odometry_prior"] = group.odometry
     return out
 
 

@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components, mini
 
 from ._blas import with_one_blas_thread
 from ._blend import seam_size
-from ._align import AlignParams, Camera, Correspondences, align_group, quick_layout
+from ._align import AlignParams, Camera, Correspondences, Odometry, align_group, quick_layout
 from ._features import Features, detect_features, to_gray
 from ._homography import MatchParams, PairFailure, PairMatch, match_pair
 from ._pairs import layout_pairs, short_links, temporal_pairs
@@ -91,6 +91,7 @@ class Group:
     model: str = "homography"  # global model of the keyframes: "pose" (K [r1 r2 t]) or "homography"
     camera: Camera | None = None  # intrinsics the pose model used or found; H maps pixels undistorted with it
     note: str = ""  # why the pose model was not kept
+    odometry: dict | None = None  # the pose model's odometry prior: used or why not (``_align.odometry_record``)
 
     def __post_init__(self) -> None:
         if not self.keyframes:
@@ -531,8 +532,18 @@ def bridge_groups(frames: list[int], pairs: _Pairs, params: RegisterParams, rng:
         layout_rounds(frames, pairs, params, rng)
 
 
+def odometry_of(prior, frames: list[int]) -> Odometry | None:
+    """The odometry a source with vehicle states offers the pose adjustment (``MotionPrior.centre_px`` of
+    every frame, its noise ``odometry_noise_px`` and ``odometry_drift``), or None."""
+    noise, drift = getattr(prior, "odometry_noise_px", None), getattr(prior, "odometry_drift", None)
+    if prior is None or noise is None or drift is None:
+        return None
+    centres = {f: c for f in frames if (c := prior.centre_px(f)) is not None}
+    return Odometry(centres, float(noise), float(drift)) if len(centres) >= 3 else None
+
+
 def align_groups(frames: list[int], edges: list[PairMatch], failures: list[PairFailure], size_wh: tuple[int, int],
-                 params: RegisterParams, rng: np.random.Generator) -> tuple[list[Group], list[PairMatch]]:
+                 params: RegisterParams, rng: np.random.Generator, odometry: Odometry | None = None) -> tuple[list[Group], list[PairMatch]]:
     """Global alignment of each connected group (:func:`align_group`); pairs inconsistent with it
     by > ``pair_outlier_px`` RMS are dropped (added to ``failures``) and the groups aligned again,
     with the camera the first alignment settled (:func:`settled_camera`): the intrinsics are the
@@ -551,7 +562,7 @@ def align_groups(frames: list[int], edges: list[PairMatch], failures: list[PairF
             comp_edges = [e for e in edges if e.i in comp_set]
             res = align_group(_initial_layout(comp, edges), _correspondences(comp_edges, params.align.points_per_pair, rng), size_wh,
                               focal_px=params.focal_px, principal_px=params.principal_px,
-                              pair_H={(e.i, e.j): e.H for e in comp_edges}, camera=camera, params=align)
+                              pair_H={(e.i, e.j): e.H for e in comp_edges}, camera=camera, odometry=odometry, params=align)
             bad = {key for key, r in res.per_pair_rms_px.items() if r > params.pair_outlier_px}
             if bad:
                 for e in comp_edges:
@@ -560,7 +571,8 @@ def align_groups(frames: list[int], edges: list[PairMatch], failures: list[PairF
                 edges = [e for e in edges if (e.i, e.j) not in bad]
                 dropped = True
             note = settled_note if (res.model == "pose" and camera is not None) or not align.pose_model else res.note
-            groups.append(Group(sorted(comp), res.H, res.rms_px, model=res.model, camera=res.camera, note=note))
+            groups.append(Group(sorted(comp), res.H, res.rms_px, model=res.model, camera=res.camera, note=note,
+                                odometry=res.odometry))
         if not dropped:
             break
         if attempt == 0 and params.align.pose_model:
@@ -658,7 +670,7 @@ def register(
 
     layout_rounds(valid, pairs, params, rng)
     bridge_groups(valid, pairs, params, rng)
-    groups, edges = align_groups(valid, list(pairs.accepted), pairs.failures, ex.size_wh, params, rng)
+    groups, edges = align_groups(valid, list(pairs.accepted), pairs.failures, ex.size_wh, params, rng, odometry_of(prior, all_valid))
     attach_frames(groups, attach)
     unplaced = {**ex.unplaced, **unplaced_reasons(all_valid, groups, pairs.failures, ex.feats, params)}
     groups.sort(key=lambda g: (-len(g.frames), g.frames[0]))

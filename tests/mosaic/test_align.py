@@ -87,6 +87,107 @@ def test_the_sparse_jacobian_matches_dense_differences_with_the_gauge_frame_left
     assert np.allclose(J, dense, rtol=1e-3, atol=1e-3 * np.abs(dense).max())
 
 
+def test_the_odometry_rows_of_the_jacobian_match_dense_differences():
+    # GIVEN the same kind of problem with the odometry's rows: frames (0, 1) and (1, 2), frame 1 the gauge
+    from inspect_pipe.mosaic._align import _PosePrior, _Problem
+
+    rng = np.random.default_rng(5)
+    fi, fj = np.r_[np.zeros(5, int), np.ones(5, int)], np.r_[np.ones(5, int), np.full(5, 2)]
+    corr = Correspondences(fi, fj, rng.uniform(0, 500, (10, 2)), rng.uniform(0, 500, (10, 2)))
+    cam = Camera(600.0, 256.0, 192.0)
+    R0 = np.stack([np.eye(3)] * 3)
+    P = np.c_[rng.normal(0, 0.02, (3, 3)), rng.normal(0, 0.3, (3, 2)), 1 + rng.normal(0, 0.05, 3)]
+    free = np.ones(3 * 6 + 1, bool)
+    free[[8, 9, 10, 11]] = False
+    prior = _PosePrior(np.array([0, 1]), np.array([1, 2]), rng.normal(0, 0.3, (2, 2)), np.array([2.0, 0.5]), 1.0, 0.0)
+    prob = _Problem("pose", [0, 1, 2], fi, fj, corr, R0, cam, ("f",), free, prior=prior)
+    full0 = np.r_[P.ravel(), cam.f]
+    r0 = prob.residuals(P, cam)
+    J = prob.jacobian(P, cam, r0).toarray()
+
+    def r(x):
+        Px, camx = prob.unpack(x, full0)
+        return prob.residuals(Px, camx)
+
+    # THEN the correspondences' 40 rows are followed by the odometry's 4, and every column is the central difference
+    x0 = full0[free]
+    dense = np.empty((44, free.sum()))
+    for c in range(free.sum()):
+        e = np.zeros_like(x0)
+        e[c] = h = 1e-6 * max(1.0, abs(x0[c]))
+        dense[:, c] = (r(x0 + e) - r(x0 - e)) / (2 * h)
+    assert J.shape == dense.shape == (44, 15) and len(r0) == 44
+    assert np.abs(dense[40:]).max() > 0.1  # the odometry's rows do depend on the poses
+    assert np.allclose(J, dense, rtol=1e-3, atol=1e-3 * np.abs(dense).max())
+    assert np.allclose(J[40:, -1], 0.0)  # and not on the focal length
+
+
+def _chain_with_a_weak_link(n_frames: int = 33, link: int = 12, keep: int = 12):
+    """The first pass of the texture-poor validation sweep (fixture README) as a chain: only pairs of frames at most
+    2 apart, and across frames ``link`` / ``link + 1`` a single pair of ``keep`` correspondences near its centre."""
+    frames, H0, corr, pair_H, size, truth = _global_step_input("pass_end_vt173.npz")
+    chain = np.isin(corr.fi, range(n_frames)) & np.isin(corr.fj, range(n_frames)) & (np.abs(corr.fi - corr.fj) <= 2)
+    crossing = chain & (corr.fi <= link) & (corr.fj > link)
+    chain &= ~crossing
+    weak = np.flatnonzero(crossing & (corr.fi == link) & (corr.fj == link + 1))
+    d = np.linalg.norm(corr.p[weak] - corr.p[weak].mean(0), axis=1)
+    chain[weak[np.argsort(d)[:keep]]] = True
+    sub = range(n_frames)
+    return ({f: H0[f] for f in sub}, Correspondences(corr.fi[chain], corr.fj[chain], corr.p[chain], corr.q[chain]),
+            {k: v for k, v in pair_H.items() if k[0] < n_frames and k[1] < n_frames}, size, {f: truth[f] for f in sub})
+
+
+def _simulated_odometry(truth, size, seed: int, focal_px: float = 618.0, mirror: bool = False):
+    """Odometry as the simulator's position estimate errs (demo flight, docs/mosaic.md): the true camera feet, a random
+    walk of 2 px (about 3 mm) a frame and a constant velocity bias of 0.6 px (1 cm/s at 10 Hz) a frame."""
+    from inspect_pipe.mosaic._align import Odometry, camera_feet, poses_from_homographies
+
+    rng = np.random.default_rng(seed)
+    R, t = poses_from_homographies(truth, Camera(focal_px, size[0] / 2, size[1] / 2).K)
+    feet = camera_feet(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2))
+    a = rng.uniform(0, 2 * np.pi)
+    steps = np.diff(feet, axis=0) + 0.6 * np.array([np.cos(a), np.sin(a)]) + rng.normal(0, 2.0, (len(feet) - 1, 2))
+    odo = feet[0] + np.r_[[[0.0, 0.0]], np.cumsum(steps, axis=0)]
+    if mirror:
+        odo[:, 1] *= -1
+    return Odometry(dict(zip(sorted(truth), odo)), noise_px=2.5, drift=0.05)
+
+
+def test_odometry_holds_a_chain_across_a_weak_link():
+    # GIVEN a 33-frame chain whose frames 12 and 13 are linked by 12 correspondences near one point only
+    from inspect_pipe.mosaic._align import align_group
+
+    H0, corr, pair_H, size, truth = _chain_with_a_weak_link()
+    alone = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H)
+    e_alone = corner_error(alone.H, truth, size)
+    # WHEN the vehicle's odometry (the simulator's noise and drift, three draws) ties consecutive frames
+    for seed in (1, 2, 3):
+        res = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H, odometry=_simulated_odometry(truth, size, seed))
+        e = corner_error(res.H, truth, size)
+        # THEN the chain bends less at its far end (3.68 px alone; 2.52 / 3.22 / 3.08 px with the three draws)
+        assert res.model == "pose" and res.odometry["used"] and res.odometry["displacements"] == 32
+        assert e.max_px < 0.9 * e_alone.max_px and e.median_px < e_alone.median_px, (seed, e, e_alone)
+        # AND the odometry and the fit agree about as its noise says
+        assert 0.3 < res.odometry["rms_sigma"] < 1.0, res.odometry
+
+
+def test_odometry_that_contradicts_the_images_is_not_used_and_says_why():
+    # GIVEN the whole texture-poor sweep (5 passes) and odometry whose vertical axis is flipped (a flight log read with
+    # the wrong convention: the passes climb where the images descend)
+    from inspect_pipe.mosaic._align import align_group
+
+    frames, H0, corr, pair_H, size, truth = _global_step_input("pass_end_vt173.npz")
+    flipped = _simulated_odometry(truth, size, 1, mirror=True)
+    res = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H, odometry=flipped)
+    # THEN the prior is left out, with the share of the motion it could not explain, and the fit is the images' alone
+    assert res.odometry["used"] is False and "unexplained" in res.odometry["why"], res.odometry
+    ce = corner_error(res.H, truth, size)
+    assert ce.median_px <= 0.5 and ce.max_px <= 2.0, ce
+    # AND the same odometry the right way up is used
+    res = align_group(H0, corr, size, focal_px=618.0, pair_H=pair_H, odometry=_simulated_odometry(truth, size, 1))
+    assert res.odometry["used"] and res.odometry["displacements"] == len(frames) - 1, res.odometry
+
+
 @pytest.mark.parametrize("focal", [True, False], ids=["focal", "self-calibrated"])
 def test_pose_model_places_the_sweep_on_the_wall(synthetic_sweep, focal):
     # GIVEN a 3-pass sweep with yaw, scale and tilt jitter and exact ground truth

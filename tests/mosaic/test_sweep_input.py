@@ -98,6 +98,10 @@ def test_sweep_mosaic_is_placed_on_the_wall_in_metres(tmp_path):
     assert np.max(errs) < 0.03, np.max(errs)
     assert doc["wall_fit"]["rms_m"] < 0.05
     assert all("t_s" in f for f in doc["frames"])
+    # AND the odometry tied each frame to the next in the pose adjustment (1 cm of noise against the 4 mm the prior
+    # assumes: the fit sits that many sigmas from it)
+    odo = doc["groups"][0]["odometry_prior"]
+    assert odo["used"] and odo["displacements"] == len(truth) - 1 and 1.0 < odo["rms_sigma"] < 5.0, odo
 
 
 def test_lens_distortion_is_removed_before_registration(tmp_path):
