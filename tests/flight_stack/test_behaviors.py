@@ -220,6 +220,26 @@ def test_waiting_for_connectivity_brakes_to_rest_then_holds_where_it_stopped():
     assert v.vx_m_s == pytest.approx(-P.position_gain_1_s * 0.1)
 
 
+def test_waiting_for_connectivity_in_an_alarm_mode_is_the_papers_hover_and_forgets_its_point():
+    import dataclasses
+
+    wfc = WaitingForConnectivity(P)
+    # GIVEN the link lost and the vehicle holding the point where it came to rest (x = 2.3)
+    rest = _in(link=False, vx=0.02)
+    rest = dataclasses.replace(rest, estimate=dataclasses.replace(rest.estimate, odometry=(2.3, 0.0, 0.0)))
+    assert wfc.update(rest, 0.02).to_command().is_zero()
+    # WHEN every range sensor is lost (mode -2: the odometry is the IMU's dead reckoning) and it reads 0.2 m off
+    for mode in (EstimationMode.ALARM_NONE, EstimationMode.ALARM_TOF):
+        blind = dataclasses.replace(rest, estimate=dataclasses.replace(rest.estimate, mode=mode, odometry=(2.5, 0.0, 0.0)))
+        # THEN it commands a plain hover, not a chase of that reading
+        assert wfc.update(blind, 0.02).to_command().is_zero()
+    # AND once a speed is measured again it holds the point where it is then, not the one from before
+    back = dataclasses.replace(rest, estimate=dataclasses.replace(rest.estimate, odometry=(2.5, 0.0, 0.0)))
+    assert wfc.update(back, 0.02).to_command().is_zero()
+    moved = dataclasses.replace(back, estimate=dataclasses.replace(back.estimate, odometry=(2.6, 0.0, 0.0)))
+    assert wfc.update(moved, 0.02).vx_m_s == pytest.approx(-P.position_gain_1_s * 0.1)
+
+
 def test_near_a_wall_the_station_keeping_is_bounded_not_cancelled_while_the_link_is_lost():
     import dataclasses
 

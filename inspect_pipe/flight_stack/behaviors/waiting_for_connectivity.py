@@ -7,7 +7,10 @@ odometry position where it came to rest: a speed towards it of ``position_gain_1
 metre of error, at most ``link_loss_hold_max_m_s``. (Holding the point where the loss was
 detected instead flew the vehicle back over its own braking distance, 0.3 m from 0.8 m/s,
 with nobody at the stick.) Without odometry (no heading from the autopilot) it is the paper's
-plain hover.
+plain hover, and so it is in the alarm modes (-1, -2): there no sensor measures the horizontal
+speed, the odometry is the IMU's dead reckoning, and chasing the point it held flew a vibrating
+vehicle 0.3 m towards the wall it no longer heard (fresh campaign seed 263 e226); the point is
+dropped, and a new one taken at rest once a speed is measured again.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ class WaitingForConnectivity:
             self._hold = None
             return None
         odo = inputs.estimate.odometry
-        if odo is None or self.p is None or not inputs.flying:
+        if odo is None or self.p is None or not inputs.flying or inputs.estimate.mode < 0:
             self._hold = None
             return AxisVector.full(HOVER)
         x, y, yaw = odo
