@@ -303,7 +303,13 @@ def render_all(report, out: Path, *, log=print) -> dict:
     write_json(out / "defects.json", reg)
     atomic_write(out / "defects.csv", csv_text.encode())
     write_json(out / "coco.json", coco(report, out))
-    write_json(out / "coverage.json", {"format": "inspect_pipe.coverage/1", **report.coverage.to_json()})
+    write_json(out / "coverage.json", {"format": "inspect_pipe.coverage/1", **report.coverage.to_json(),
+                                       "separate_mosaics": report.separate})
+    if report.separate:
+        n = sum(g["n_frames"] for g in report.separate)
+        log(f"warning: {n} placed frames in {len(report.separate)} separate mosaic(s) "
+            f"({', '.join(g['image'] for g in report.separate)}) are not inspected in this report: no image pair ties them "
+            "to the main mosaic (fly across the gap again, or run inspect-pipe detect on those images)")
     write_json(out / "rating.json", {"format": "inspect_pipe.rating/1", **report.rating.to_json()})
     assets = {"overlay": "assets/overlay.png", "coverage": "assets/coverage.png"}
     html = render_html(report, assets)

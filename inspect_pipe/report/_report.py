@@ -70,6 +70,21 @@ class Report:
     suppressed: list = field(default_factory=list)  # _screen.Suppressed: candidates left out, with the rule
     precision: object = None  # _screen.Precision
     crop_info: dict = field(default_factory=dict)  # defect id -> {frame, sharpness, of}: where its crop was cut (render_all)
+    separate: list[dict] = field(default_factory=list)  # separate_mosaics(): placed frames this report does not inspect
+
+
+def separate_mosaics(mosaic_doc: dict) -> list[dict]:
+    """The mosaics besides the main one (``mosaic_group<k>.png``): frames that registered to each other but
+    that no image pair ties to the main mosaic. The report inspects and places only the main one (its wall
+    map is the main group's), so these are listed, never left out in silence: [{group, image, n_frames,
+    frames}]."""
+    by_group: dict[int, list[int]] = {}
+    images: dict[int, str] = {}
+    for f in mosaic_doc.get("frames") or []:
+        if isinstance(f, dict) and isinstance(f.get("group"), int) and f["group"] != 0 and isinstance(f.get("index"), int):
+            by_group.setdefault(f["group"], []).append(f["index"])
+            images[f["group"]] = str(f.get("image") or f"mosaic_group{f['group']}.png")
+    return [{"group": g, "image": images[g], "n_frames": len(fr), "frames": sorted(fr)} for g, fr in sorted(by_group.items())]
 
 
 def sha256_file(path: Path) -> str:
@@ -205,7 +220,10 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "m_per_px": wall.m_per_px,
         "checksums_sha256": inp.checksums,
         "survey_plan": None if plan is None else plan.to_json(),
-        "limitations": _limitations(sweep, plan, ((doc.get("input") or {}).get("camera") or {}).get("calibration")),
+        "limitations": _limitations(sweep, plan, ((doc.get("input") or {}).get("camera") or {}).get("calibration"))
+        + [f"separate mosaic: {g['n_frames']} placed frames ({g['frames'][0]}-{g['frames'][-1]}) form {g['image']}, which no image "
+           "pair ties to the main mosaic: not inspected in this report and no wall position (Coverage); fly across the gap "
+           "again, or inspect it with inspect-pipe detect" for g in separate_mosaics(doc)],
         "area_imaging": area_imaging(rating.areas, views, wall, sweep),
         "hard_rust_rule": hard_rule,
         "scheme_thresholds": {k: v for k, v in asdict(SCHEMES[params.rating.scheme]).items() if isinstance(v, float)},
@@ -213,12 +231,14 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
                        + f", in {params.rating.area_size_m:g} m bands up from the tank top (survey plan)")
         if any(a.label for a in rating.areas) else f"{params.rating.area_size_m:g} m squares (no frames or stiffeners in a survey plan)",
         "precision": precision.to_json(),
+        "separate_mosaics": [{k: v for k, v in g.items() if k != "frames"} for g in separate_mosaics(doc)],
         "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
                       "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
         "params": json.loads(json.dumps(asdict(params), default=str)),
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
-    return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed, precision)
+    return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed,
+                  precision, separate=separate_mosaics(doc))
 
 
 def entry_severity(d: Defect, severity: np.ndarray) -> dict | None:

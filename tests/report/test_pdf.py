@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from inspect_pipe.report import CoverageParams, ReportParams, report_from_run, write_report
+from inspect_pipe.report._render import render_html
+
+from .conftest import make_run
 
 
 def _weasyprint_ok() -> str | None:
@@ -103,3 +106,28 @@ def test_a_long_register_keeps_each_row_whole_and_repeats_its_header(run_dir, tm
     for k in range(45):
         where_note = [i for i, p in enumerate(pages) if f"Q{k:03d}" in p]
         assert len(where_note) == 1 and f"R{k:03d}" in pages[where_note[0]], (k, where_note)
+
+
+def test_frames_in_a_separate_mosaic_are_named_not_left_out_in_silence(run_dir, tmp_path):
+    # GIVEN a run whose mosaic step also wrote a second, separate mosaic of 3 frames (no pair tied it to the main one)
+    import json
+
+    doc = json.loads((run_dir.mosaic_dir / "mosaic.json").read_text())
+    doc["frames"] += [{"index": 10 + k, "file": f"images/x{k}.png", "H": [[1, 0, 40 * k], [0, 1, 0], [0, 0, 1]], "group": 1,
+                       "image": "mosaic_group1.png"} for k in range(3)]
+    (run_dir.mosaic_dir / "mosaic.json").write_text(json.dumps(doc))
+    logged = []
+    rep = report_from_run(run_dir, tmp_path / "r", ReportParams(pdf=False))
+    write_report(rep, tmp_path / "r", log=logged.append)
+    # THEN the report says which frames it did not inspect, at the top and under Coverage, and so do its files and log
+    html = (tmp_path / "r" / "report.html").read_text()
+    assert "separate mosaic: 3 placed frames (10-12) form mosaic_group1.png" in html
+    assert 'id="separate"' in html and "3 frames (10-12) form mosaic_group1.png" in html
+    cov = json.loads((tmp_path / "r" / "coverage.json").read_text())
+    assert cov["separate_mosaics"] == [{"group": 1, "image": "mosaic_group1.png", "n_frames": 3, "frames": [10, 11, 12]}]
+    reg = json.loads((tmp_path / "r" / "defects.json").read_text())
+    assert reg["traceability"]["separate_mosaics"] == [{"group": 1, "image": "mosaic_group1.png", "n_frames": 3}]
+    assert any("3 placed frames in 1 separate mosaic(s) (mosaic_group1.png) are not inspected" in m for m in logged)
+    # AND a run with one mosaic says nothing of the kind
+    rep = report_from_run(make_run(tmp_path / "one"), tmp_path / "r1", ReportParams(pdf=False))
+    assert rep.separate == [] and "separate mosaic" not in render_html(rep, {"overlay": "", "coverage": ""})
