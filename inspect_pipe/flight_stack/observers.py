@@ -136,7 +136,7 @@ class SpeedObserver:
         was used."""
         y = z - (self.v if then is None else then)
         s = self.p00 + noise * noise
-        if y * y > self.gate * self.gate * s:
+        if not self.consistent(z, noise, then=then):
             self.refused += 1
             if self.refused < self.RESTART_AFTER:
                 return False
@@ -153,6 +153,12 @@ class SpeedObserver:
             self.b += k1 * y
             self.p11 -= k1 * p01
         return True
+
+    def consistent(self, z: float, noise: float, *, then: float | None = None) -> bool:
+        """Whether a measurement ``z`` lies within the gate (what :meth:`correct` would use), with no
+        side effect: whatever else reads the same sensor asks this first."""
+        y = z - (self.v if then is None else then)
+        return y * y <= self.gate * self.gate * (self.p00 + noise * noise)
 
     def restart(self, v: float) -> None:
         """Restart the speed at ``v`` (its variance too); the bias is kept."""

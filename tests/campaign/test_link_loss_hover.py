@@ -57,14 +57,17 @@ def test_link_loss_hover_drifts_less_than_0_3_m(seed, index, fname, before):
 HONEST_DRIFT_CASES = [
     # every range sensor lost under vibration during the loss: the hold chased the IMU's dead reckoning (alarm mode -2)
     (263, 226, "campaign_s263_e00226_corner_push.yaml", 0.331),
+    # a flow glitch the x observer refused drove the front range's rate, then the observer, then the station keeping
+    (11, 428, "campaign_s11_e00428_wall_push.yaml", 0.312),
 ]
 
 
 @pytest.mark.parametrize("seed,index,fname,before", HONEST_DRIFT_CASES, ids=[c[2] for c in HONEST_DRIFT_CASES])
-def test_link_loss_hover_in_an_alarm_mode_does_not_chase_dead_reckoning(seed, index, fname, before):
+def test_link_loss_hover_does_not_chase_a_speed_nothing_measured(seed, index, fname, before):
     assert (REGRESSIONS / fname).is_file()
-    # GIVEN a link loss during which no sensor measures the horizontal speed, under rotor vibration
-    # WHEN ours flies it THEN the vehicle hovers (the paper's behaviour) and drifts less than 0.3 m
+    # GIVEN a link loss during which the speed estimate leaves the truth: dead reckoning under vibration (alarm mode),
+    # or a flow glitch the observer refused that still reached it through the front range
+    # WHEN ours flies it THEN the station keeping holds the vehicle within 0.25 m (goal 0.3)
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided
     assert r.link_drift_m and max(r.link_drift_m) <= 0.25 < before, r.link_drift_m

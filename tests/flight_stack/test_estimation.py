@@ -574,6 +574,27 @@ def test_a_speed_observer_whose_gate_refuses_every_reading_restarts_at_them():
     assert not obs.correct(3.0, 0.1) and obs.correct(-0.65, 0.1) and obs.refused == 0
 
 
+def test_a_flow_glitch_the_speed_observer_refuses_does_not_become_the_front_ranges_rate():
+    # GIVEN a vehicle hovering 2 m from the front wall in mode 1 (10 Hz sonar, 50 Hz flows)
+    upd = MAVStateUpdater()
+    t = 0.0
+    for k in range(100):
+        t = 0.02 * k
+        est, _ = upd.update(t, _meas(t, vx=0.0, vy=0.0, vz=0.0, front_range=2.0))
+    # WHEN one bottom-flow reading reads 0.46 m/s (low texture at the quality threshold) and the bottom flow is then lost
+    t += 0.02
+    glitch = _meas(t, vx=0.46, vy=0.0, vz=0.0, front_range=2.0)
+    est, _ = upd.update(t, glitch)
+    assert est.vx_m_s == pytest.approx(0.0, abs=0.02)  # the x observer's gate refuses it
+    for k in range(1, 51):  # 1 s of mode 2: vx from the front range's rate
+        est, _ = upd.update(t + 0.02 * k, _meas(t + 0.02 * k, bottom=False, vx=0.0, vy=0.0, vz=0.0, front_range=2.0))
+        assert est.mode == EstimationMode.TOF_FRONT
+        # THEN the front range's rate did not take it either, so vx stays the hover's (before 2026-11-29 the range
+        # took the glitch as its rate, fed it to the observer until its gate restarted at it: 0.47 m/s; seed 11 e428)
+        assert abs(est.vx_m_s) < 0.05, (k, est.vx_m_s)
+    assert abs(upd.front.rate) < 0.05
+
+
 def test_a_measurement_that_shares_the_imus_errors_corrects_the_speed_but_not_the_bias():
     obs = SpeedObserver(accel_noise=0.1, bias_walk=0.03, gate=4.0)
     for _ in range(200):
