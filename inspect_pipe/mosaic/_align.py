@@ -548,7 +548,7 @@ def pose_prior(H_wall: dict[int, np.ndarray], cam: Camera, odometry: Odometry, p
         return None, (f"one similarity leaves {100 * unexplained:.0f} % of the odometry's displacements unexplained "
                       f"by the images (limit {100 * params.odometry_max_unexplained:.0f} %)")
     target = z * o
-    sigma_wall = abs(z) * (odometry.noise_px + odometry.drift * flown)
+    sigma_wall = abs(z) * np.maximum(odometry.noise_px + odometry.drift * flown, 1e-3)
     weight = max(pair_sigma_px, 0.05) / sigma_wall
     return _PosePrior(ii, jj, np.c_[target.real, target.imag], weight, abs(z), float(np.degrees(np.angle(z)))), ""
 
