@@ -136,7 +136,7 @@ class SpeedObserver:
         was used."""
         y = z - (self.v if then is None else then)
         s = self.p00 + noise * noise
-        if not self.consistent(z, noise, then=then):
+        if not self._within_gate(y, s):
             self.refused += 1
             if self.refused < self.RESTART_AFTER:
                 return False
@@ -157,8 +157,10 @@ class SpeedObserver:
     def consistent(self, z: float, noise: float, *, then: float | None = None) -> bool:
         """Whether a measurement ``z`` lies within the gate (what :meth:`correct` would use), with no
         side effect: whatever else reads the same sensor asks this first."""
-        y = z - (self.v if then is None else then)
-        return y * y <= self.gate * self.gate * (self.p00 + noise * noise)
+        return self._within_gate(z - (self.v if then is None else then), self.p00 + noise * noise)
+
+    def _within_gate(self, innovation: float, variance: float) -> bool:
+        return innovation * innovation <= self.gate * self.gate * variance
 
     def restart(self, v: float) -> None:
         """Restart the speed at ``v`` (its variance too); the bias is kept."""

@@ -236,6 +236,12 @@ def camera_feet(A: np.ndarray) -> np.ndarray:
     return -np.stack([(A[:, :, 0] * A[:, :, 2]).sum(1), (A[:, :, 1] * A[:, :, 2]).sum(1)], axis=1)
 
 
+def wall_feet(H_wall: dict[int, np.ndarray], K: np.ndarray) -> np.ndarray:
+    """(n, 2): :func:`camera_feet` of the frames of ``H_wall`` (frame px -> wall), in sorted frame order."""
+    R, t = poses_from_homographies(H_wall, K)
+    return camera_feet(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2))
+
+
 def _prior_residuals(feet_i: np.ndarray, feet_j: np.ndarray, prior: _PosePrior) -> np.ndarray:
     """(n, 2): the feet's displacement against the odometry's, weighted."""
     return (feet_j - feet_i - prior.target) * prior.weight[:, None]
@@ -534,8 +540,7 @@ def pose_prior(H_wall: dict[int, np.ndarray], cam: Camera, odometry: Odometry, p
     at = {f: k for k, f in enumerate(track)}
     d_odo = np.array([odometry.centre_px[j] - odometry.centre_px[i] for i, j in zip(fi, fj)], float)
     flown = np.array([path[at[j]] - path[at[i]] for i, j in zip(fi, fj)])
-    R0, t0 = poses_from_homographies(H_wall, cam.K)
-    feet = camera_feet(np.concatenate([R0[:, :, :2], t0[:, :, None]], axis=2))
+    feet = wall_feet(H_wall, cam.K)
     ii, jj = np.array([col[f] for f in fi]), np.array([col[f] for f in fj])
     d_img = feet[jj] - feet[ii]
     o, c = d_odo[:, 0] + 1j * d_odo[:, 1], d_img[:, 0] + 1j * d_img[:, 1]
@@ -558,8 +563,7 @@ def odometry_record(prior: _PosePrior | None, why: str, H_wall: dict[int, np.nda
     fitted poses are from them, in the odometry's sigmas (about 1 where the two agree as their noise says)."""
     if prior is None:
         return {"used": False, "why": why}
-    R, t = poses_from_homographies(H_wall, cam.K)
-    feet = camera_feet(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2))
+    feet = wall_feet(H_wall, cam.K)
     r = _prior_residuals(feet[prior.ii], feet[prior.jj], prior) / max(pair_sigma_px, 0.05)  # in sigmas
     dist = np.hypot(r[:, 0], r[:, 1])
     return {"used": True, "displacements": int(len(prior.ii)), "rms_sigma": round(float(np.sqrt(np.mean(dist**2) / 2)), 3),

@@ -202,6 +202,7 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
                        severity=sev_g, u_edges_m=plate_field_edges(plan, wall_frame, grid.u0_m, grid.u0_m + grid.shape[1] * grid.cell_m))
 
     model = inp.detections.get("model") or {}
+    separate = separate_mosaics(doc)
     trace = {
         "software": f"inspect_pipe {inspect_pipe.__version__}",
         # detections written before the engines had names came from the saliency engine
@@ -223,7 +224,7 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
         "limitations": _limitations(sweep, plan, ((doc.get("input") or {}).get("camera") or {}).get("calibration"))
         + [f"separate mosaic: {g['n_frames']} placed frames ({g['frames'][0]}-{g['frames'][-1]}) form {g['image']}, which no image "
            "pair ties to the main mosaic: not inspected in this report and no wall position (Coverage); fly across the gap "
-           "again, or inspect it with inspect-pipe detect" for g in separate_mosaics(doc)],
+           "again, or inspect it with inspect-pipe detect" for g in separate],
         "area_imaging": area_imaging(rating.areas, views, wall, sweep),
         "hard_rust_rule": hard_rule,
         "scheme_thresholds": {k: v for k, v in asdict(SCHEMES[params.rating.scheme]).items() if isinstance(v, float)},
@@ -231,14 +232,14 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
                        + f", in {params.rating.area_size_m:g} m bands up from the tank top (survey plan)")
         if any(a.label for a in rating.areas) else f"{params.rating.area_size_m:g} m squares (no frames or stiffeners in a survey plan)",
         "precision": precision.to_json(),
-        "separate_mosaics": [{k: v for k, v in g.items() if k != "frames"} for g in separate_mosaics(doc)],
+        "separate_mosaics": [{k: v for k, v in g.items() if k != "frames"} for g in separate],
         "screening": {"candidates": len(candidates), "kept": len(new), "left_out": [x.to_json() for x in suppressed],
                       "region_wall_m": [round(x, 3) for x in region], "tank_top_v_m": survey.tank_top_v_m},
         "params": json.loads(json.dumps(asdict(params), default=str)),
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     return Report(defects, wall, survey, coverage, rating, views, inp, params, trace, list(doc.get("unplaced") or []), suppressed,
-                  precision, separate=separate_mosaics(doc))
+                  precision, separate=separate)
 
 
 def entry_severity(d: Defect, severity: np.ndarray) -> dict | None:

@@ -140,11 +140,10 @@ def _chain_with_a_weak_link(n_frames: int = 33, link: int = 12, keep: int = 12):
 def _simulated_odometry(truth, size, seed: int, focal_px: float = 618.0, mirror: bool = False):
     """Odometry as the simulator's position estimate errs (demo flight, docs/mosaic.md): the true camera feet, a random
     walk of 2 px (about 3 mm) a frame and a constant velocity bias of 0.6 px (1 cm/s at 10 Hz) a frame."""
-    from inspect_pipe.mosaic._align import Odometry, camera_feet, poses_from_homographies
+    from inspect_pipe.mosaic._align import Odometry, wall_feet
 
     rng = np.random.default_rng(seed)
-    R, t = poses_from_homographies(truth, Camera(focal_px, size[0] / 2, size[1] / 2).K)
-    feet = camera_feet(np.concatenate([R[:, :, :2], t[:, :, None]], axis=2))
+    feet = wall_feet(truth, Camera(focal_px, size[0] / 2, size[1] / 2).K)
     a = rng.uniform(0, 2 * np.pi)
     steps = np.diff(feet, axis=0) + 0.6 * np.array([np.cos(a), np.sin(a)]) + rng.normal(0, 2.0, (len(feet) - 1, 2))
     odo = feet[0] + np.r_[[[0.0, 0.0]], np.cumsum(steps, axis=0)]
