@@ -216,18 +216,21 @@ def _apply_rows(M: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray
     return m[0] * x + m[1] * y + m[2], m[3] * x + m[4] * y + m[5], m[6] * x + m[7] * y + m[8]
 
 
-def _transfer(Ainv_src: np.ndarray, A_dst: np.ndarray, cam: Camera, xy: np.ndarray) -> np.ndarray:
-    """Pixels of the source frame -> pixels of the destination frame, through the wall plane
-    (per-row maps ``A`` wall -> normalised image, ``Ainv`` their inverses)."""
-    m = _undistort(xy, cam)
+def _transfer(Ainv_src: np.ndarray, A_dst: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
+    """Normalised image coordinates of the source frame (:func:`_undistort`) -> pixels of the destination
+    frame, through the wall plane (per-row maps ``A`` wall -> normalised image, ``Ainv`` their inverses)."""
     X, Y, W = _apply_rows(Ainv_src, m[:, 0], m[:, 1])
     u, v, z = _apply_rows(A_dst, X / W, Y / W)
     return _distort(np.stack([u / z, v / z], axis=1), cam)
 
 
-def _pair_residuals(A_i, Ainv_i, A_j, Ainv_j, cam: Camera, corr: Correspondences) -> np.ndarray:
-    """(N, 4): symmetric transfer errors in pixels, i->j then j->i (per-row maps and inverses)."""
-    return np.concatenate([_transfer(Ainv_i, A_j, cam, corr.p) - corr.q, _transfer(Ainv_j, A_i, cam, corr.q) - corr.p], axis=1)
+def _pair_residuals(A_i, Ainv_i, A_j, Ainv_j, cam: Camera, corr: Correspondences,
+                    normalised: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(N, 4): symmetric transfer errors in pixels, i->j then j->i (per-row maps and inverses).
+    ``normalised``: the correspondences undistorted with ``cam`` (``corr.p``, ``corr.q``), when the caller
+    reuses them over many calls at one camera (the Jacobian's columns)."""
+    m_p, m_q = normalised if normalised is not None else (_undistort(corr.p, cam), _undistort(corr.q, cam))
+    return np.concatenate([_transfer(Ainv_i, A_j, cam, m_p) - corr.q, _transfer(Ainv_j, A_i, cam, m_q) - corr.p], axis=1)
 
 
 def camera_feet(A: np.ndarray) -> np.ndarray:
@@ -319,6 +322,7 @@ class _Problem:
         A = wall_to_image(self.model, P, self.R0)
         Ainv = np.linalg.inv(A)
         Ai, Aj, Ai_inv, Aj_inv = A[self.ii], A[self.jj], Ainv[self.ii], Ainv[self.jj]
+        mn = (_undistort(self.corr.p, cam), _undistort(self.corr.q, cam))  # the frames' columns share the camera
         block = np.empty((N, 4, 2 * k + len(self.intrinsics)))
         pr = self.prior
         if pr is not None:
@@ -331,8 +335,8 @@ class _Problem:
             Pp[:, c] += h
             Ap = wall_to_image(self.model, Pp, self.R0)
             Ap_inv = np.linalg.inv(Ap)
-            block[:, :, c] = (_pair_residuals(Ap[self.ii], Ap_inv[self.ii], Aj, Aj_inv, cam, self.corr) - r_pairs) / h
-            block[:, :, k + c] = (_pair_residuals(Ai, Ai_inv, Ap[self.jj], Ap_inv[self.jj], cam, self.corr) - r_pairs) / h
+            block[:, :, c] = (_pair_residuals(Ap[self.ii], Ap_inv[self.ii], Aj, Aj_inv, cam, self.corr, mn) - r_pairs) / h
+            block[:, :, k + c] = (_pair_residuals(Ai, Ai_inv, Ap[self.jj], Ap_inv[self.jj], cam, self.corr, mn) - r_pairs) / h
             if pr is not None:
                 feet_p = camera_feet(Ap)
                 prior_block[:, :, c] = (_prior_residuals(feet_p[pr.ii], feet[pr.jj], pr) - r_prior) / h
