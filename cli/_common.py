@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import math
 from enum import Enum
 import logging
 import sys
@@ -42,6 +43,9 @@ def one_line_errors(func: F) -> F:
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        for name, value in kwargs.items():  # no command takes a NaN or an infinity for a number
+            if isinstance(value, float) and not math.isfinite(value):
+                raise fail(f"--{name.replace('_', '-')} {value}: must be a finite number")
         try:
             return func(*args, **kwargs)
         except InputError as err:

@@ -118,6 +118,12 @@ def capture(
         raise fail(f"--rate {rate}: must be in (0, 200] Hz")
     if duration is not None and duration <= 0:
         raise fail(f"--duration {duration}: must be > 0 s")
+    if frames is not None and frames < 1:
+        raise fail(f"--frames {frames}: must be at least 1")
+    if exposure is not None and not (0 < exposure <= 1.0):
+        raise fail(f"--exposure {exposure}: must be in (0, 1] s")
+    if frame_spacing is not None and frame_spacing <= 0:
+        raise fail(f"--frame-spacing {frame_spacing}: must be > 0 m")
     image_format = image_format.value
     if ":" not in source and source != "ids":
         raise InputError(f"--source {source}", "unknown source", f"one of {SOURCE_SPECS}")

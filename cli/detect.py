@@ -296,6 +296,8 @@ def train(
     """
     import inspect_pipe.saliency_defects as sd
 
+    if out.is_dir():  # checked before an hour of training, not after it
+        raise InputError(str(out), "is a directory", "give the model file to write, e.g. -o models/defects.onnx")
     if engine is Engine.onnx:
         return _train_onnx(data, out, version, time_budget_min)
     if engine is Engine.fused:

@@ -10,6 +10,7 @@ import typer
 from cli._common import SURVEY_HELP, load_plan, one_line_errors
 from inspect_pipe.capture import backends
 from inspect_pipe.capture.sources import v4l2
+from inspect_pipe.errors import InputError
 
 HELP = """List every camera and vehicle back-end, whether it is usable on this machine, and why
 (not): missing SDK, missing runtime, no device attached. Under the list, each V4L2 camera's pixel
@@ -40,13 +41,22 @@ def doctor(
         from inspect_pipe.capture import read_sweep
         from inspect_pipe.pipeline._readiness import sweep_readiness
 
-        findings = sweep_readiness(read_sweep(sweep), load_plan(survey))
+        sw = read_sweep(sweep)
+        if not sw.frames:
+            why = f" ({sw.problems[0]})" if sw.problems else ""
+            raise InputError(str(sweep / "frames.jsonl"), f"no readable frames{why}", "nothing to judge: capture or import again")
+        findings = sweep_readiness(sw, load_plan(survey))
         for f in findings:
             typer.echo(f"{'ok ' if f.ok else 'no '} {f.line()}")
+        if sw.problems:
+            typer.echo(f"no  frames: {len(sw.problems)} line(s) of frames.jsonl skipped (first: {sw.problems[0]})")
         missing = sum(not f.ok for f in findings)
         typer.echo(f"{sweep}: " + ("ready for a report in metres and ship terms" if not missing
                                     else f"{missing} thing(s) to provide; the report states each as a limitation"))
         return
+    if survey is not None:  # checked on its own: one line, or the one-line error of a bad plan
+        plan = load_plan(survey)
+        typer.echo(f"ok  survey plan {survey}: {plan.vessel.name}, {plan.compartment.name}, {plan.wall.name.value}")
     rows = backends()
     width = max(len(f"{b.kind} {b.name}") for b in rows)
     for b in rows:

@@ -56,7 +56,7 @@ def mosaic(
     out: Path = typer.Option(..., "-o", "--out", help="Output directory (created)."),
     detector: Detector = typer.Option("sift", help="Feature detector."),
     focal_px: float = typer.Option(0.0, "--focal-px", help="Camera focal length in pixels, if known. Without it, the focal length (and radial distortion k1, k2) is self-calibrated from the images; mosaic.json records what was found."),
-    seed: int = typer.Option(0, help="Seed of the robust estimators (results are deterministic for a seed)."),
+    seed: int = typer.Option(0, min=0, help="Seed of the robust estimators (results are deterministic for a seed)."),
     verify: bool = typer.Option(False, "--verify", help="A sweep: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced."),
     camera: Path = typer.Option(None, "--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): K and distortion, over a sweep's own."),
     survey: Path = typer.Option(None, "--survey", help=SURVEY_HELP + " A sweep: the plan's wall and take-off tie place the mosaic on that wall (over the plan stored in the sweep)."),

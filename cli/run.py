@@ -66,6 +66,11 @@ Examples:
 RichProgress = StageProgress  # the name demo and older code import
 
 
+#: The smallest side of an area under consideration (--area-m): a finer grid rates nothing a surveyor reads and,
+#: over a hold's wall, is millions of areas.
+MIN_AREA_M = 0.1
+
+
 def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str, area_m: float, no_pdf: bool,
                  m_per_px: Optional[float], focal_px: Optional[float], report_out: Optional[Path] = None, survey: dict | None = None,
                  engine: str = DEFAULT_ENGINE, verify: bool = False, survey_plan=None, camera=None, model: Optional[Path] = None):
@@ -76,6 +81,13 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
         raise InputError("--scheme", f"{scheme!r} unknown", f"one of {', '.join(SCHEMES)}")
     if area_m <= 0:
         raise InputError("--area-m", f"{area_m} is not positive")
+    if area_m < MIN_AREA_M:
+        raise InputError("--area-m", f"{area_m:g} m is below {MIN_AREA_M:g} m", "areas under consideration are of the order of a metre")
+    for name, value in (("--m-per-px", m_per_px), ("--focal-px", focal_px)):
+        if value is not None and value <= 0:
+            raise InputError(name, f"{value:g} is not positive")
+    if keyframe_spacing < 0:
+        raise InputError("--keyframe-spacing", f"{keyframe_spacing:g} is negative", "0: mosaic only")
     k = ("corrosion", "crack") if kinds == "all" else tuple(x.strip() for x in kinds.split(",") if x.strip())
     report = {"rating": {"scheme": scheme, "area_size_m": area_m}, "pdf": not no_pdf}
     if m_per_px:

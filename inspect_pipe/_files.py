@@ -3,6 +3,7 @@ rename it into place, so a reader sees the old file or the whole new one, never 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
@@ -41,6 +42,9 @@ def atomic_write(path: Path, data: bytes, *, fsync: bool = True) -> None:
     The file gets the mode ``open()`` would give a new file (0o666 less the umask: 0644 by
     default), not mkstemp's private 0600, so a colleague or a web server can read the report."""
     path = Path(path)
+    if os.path.lexists(path) and not (path.is_file() or path.is_symlink()):
+        # a directory, a device (/dev/full), a pipe: renaming over it would remove it, not write into it
+        raise OSError(errno.EEXIST, "exists and is not a regular file (give a file path)", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:

@@ -236,7 +236,8 @@ class Sweep:
 
 
 def _vec(x, n: int) -> tuple[float, ...] | None:
-    if isinstance(x, list) and len(x) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in x):
+    """A vector of ``n`` finite numbers, else None (a NaN in a state is no state, as :func:`_num` reads a scalar)."""
+    if isinstance(x, list) and len(x) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in x):
         return tuple(float(v) for v in x)
     return None
 

@@ -235,7 +235,8 @@ def run_mosaic_sweep(
     main = {f: h for f, h in result.H.items() if result.group_of[f] == 0}
     take_off = take_off_frames(source, main) if main else {}  # for the wall map's fit only, not blended
     geom = wall_geometry(sweep, main, source.focal_px, source.principal_px, take_off=take_off) if main else None
-    geom = (control_point_geometry(sweep, main, geom) if main else None) or geom
+    by_points, unused_points = control_point_geometry(sweep, main, geom) if main else (None, [])
+    geom = by_points or geom
     if geom is not None:
         import json
 
@@ -247,7 +248,7 @@ def run_mosaic_sweep(
         write_json(out_dir / "mosaic.json", doc)
     if result.H:  # the mosaic stands: unreadable frames and skipped lines are warnings
         corrupt = [f"{Path(sweep.path) / sweep.frames[i].image}: {why} (unplaced)" for i, why in sorted(sweep.corrupt.items())]
-        result.warnings.extend([str(p) for p in sweep.problems] + corrupt + result.problems)
+        result.warnings.extend([str(p) for p in sweep.problems] + corrupt + result.problems + unused_points)
         result.problems = []
     elif sweep.problems:
         result.problems.append(str(sweep.problems[0]))

@@ -456,40 +456,43 @@ def _smooth_drift_fit(M: np.ndarray, W: np.ndarray, t: np.ndarray, ground: np.nd
     return L, np.array([tu, tv]), (drift_u, 0.0), r, float(np.hypot(xf[0], xf[1]))
 
 
-def control_point_geometry(sweep, H: dict[int, np.ndarray], odometry: WallGeometry | None) -> WallGeometry | None:
+def control_point_geometry(sweep, H: dict[int, np.ndarray], odometry: WallGeometry | None) -> tuple[WallGeometry | None, list[str]]:
     """The survey plan's control points (a pixel of a named frame and the wall point it shows)
     tie the mosaic to the wall: two or more fix rotation, scale and offset (a similarity, least
-    squares); one only shifts the odometry's placement. None without usable points."""
+    squares); one only shifts the odometry's placement. Returns (the geometry, None without usable
+    points; a warning for each point left out: its image not in the sweep, or not placed)."""
     plan = sweep.meta.survey_plan
     if plan is None or not plan.control_points:
-        return None
+        return None, []
     by_name = {}
     for i, f in enumerate(sweep.frames):
         by_name.setdefault(f.image, i)
         by_name.setdefault(Path(f.image).name, i)
     K, dist = np.asarray(sweep.meta.K, float), np.asarray(sweep.meta.dist, float)
-    mos, wall = [], []
-    for cp in plan.control_points:
+    mos, wall, unused = [], [], []
+    for k, cp in enumerate(plan.control_points):
         i = by_name.get(cp.image, by_name.get(Path(cp.image).name))
         if i is None or i not in H:
-            continue  # a frame that is not in the sweep or was not placed
+            why = "is not a frame of the sweep" if i is None else "was not placed in the main mosaic"
+            unused.append(f"survey plan control_points.{k}: image {cp.image!r} {why}; the point is not used")
+            continue
         und = cv2.undistortPoints(np.array([[cp.pixel]], np.float64), K, dist, P=K).reshape(2)
         q = H[i] @ np.array([und[0], und[1], 1.0])
         mos.append(q[:2] / q[2])
         wall.append(cp.wall_m)
     if not mos:
-        return None
+        return None, unused
     M, Wm = np.array(mos, float), np.array(wall, float)
     F = np.diag([1.0, -1.0])
     meta = sweep.meta
     if len(M) == 1:
         if odometry is None:
-            return None  # one point fixes no scale
+            return None, unused + ["survey plan control_points: one usable point and no odometry fix no scale; the points are not used"]
         T = odometry.wall_from_mosaic.copy()
         p = T @ np.array([M[0, 0], M[0, 1], 1.0])
         T[:2, 2] += Wm[0] - p[:2] / p[2]
         return WallGeometry(odometry.m_per_px, T, 0.0, 0.0, odometry.free_scale_m_per_px, 1, odometry.drift_m_per_s,
-                            odometry.wall, odometry.wall_note, odometry.method + "; offset from 1 control point of the survey plan")
+                            odometry.wall, odometry.wall_note, odometry.method + "; offset from 1 control point of the survey plan"), unused
     mc, wc = M.mean(0), Wm.mean(0)
     A = (F @ (Wm - wc).T) @ (M - mc)
     U, S, Vt = np.linalg.svd(A)
@@ -503,7 +506,7 @@ def control_point_geometry(sweep, H: dict[int, np.ndarray], odometry: WallGeomet
     T[:2, :2], T[:2, 2] = L, t
     return WallGeometry(scale, T, float(np.sqrt(np.mean(r ** 2))), float(r.max()), scale, len(M), (0.0, 0.0),
                         meta.wall_frame().wall.value, meta.wall_frame_note(),
-                        f"similarity fitted to {len(M)} control points of the survey plan (residual over the points)")
+                        f"similarity fitted to {len(M)} control points of the survey plan (residual over the points)"), unused
 
 
 def is_sweep(path: Path) -> bool:

@@ -62,6 +62,10 @@ def parse_edit(doc: object) -> Edit:
         raise ReviewError(where, f"field 'field' is {fld!r}", f"one of {', '.join(FIELDS)}")
     if not isinstance(value, str):
         raise ReviewError(where, "field 'value' missing or not a string")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:  # a lone surrogate (JSON "\ud800"): no file could hold it
+        raise ReviewError(where, "field 'value' is not valid Unicode text", "send text") from None
     if fld == "status" and value not in STATUSES:
         raise ReviewError(where, f"status {value!r}", f"one of {', '.join(STATUSES)}")
     if fld == "class" and value not in CLASSES:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from inspect_pipe.errors import InputError
 
@@ -26,7 +26,8 @@ FORMAT = "inspect_pipe.survey_plan/1"
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # no NaN or infinity in any number of the plan (a heading, a control point, a frame number)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Vessel(_Strict):
@@ -110,7 +111,8 @@ class ControlPoint(_Strict):
     """A pixel of a named image and the wall point (u, v) m it shows (like ODM's GCP file)."""
 
     image: str
-    pixel: tuple[float, float]
+    pixel: tuple[Annotated[float, Field(ge=0.0)], Annotated[float, Field(ge=0.0)]] = Field(
+        description="(x, y) in the image's pixels, from its top-left corner")
     wall_m: tuple[float, float]
 
 
@@ -137,6 +139,20 @@ class SurveyPlan(_Strict):
     @classmethod
     def _wall(cls, v):
         return {"name": v} if isinstance(v, str) else v
+
+    @model_validator(mode="after")
+    def _takeoff_in_hold(self):
+        """A take-off point outside the hold's stated size is a typing error (hold coordinates: x from the aft
+        bulkhead, y from the centreline to port, z from the tank top; docs/ship.md)."""
+        if self.takeoff is None:
+            return self
+        x, y, z = self.takeoff.position_m
+        h, slack = self.hold, 0.5
+        for name, value, lo, hi in (("x", x, 0.0, h.length_m), ("y", y, None if h.width_m is None else -h.width_m / 2, None if h.width_m is None else h.width_m / 2),
+                                    ("z", z, 0.0, h.height_m)):
+            if hi is not None and not (lo - slack <= value <= hi + slack):
+                raise ValueError(f"takeoff.position_m {name} = {value:g} m lies outside the hold ({lo:g} to {hi:g} m)")
+        return self
 
     # ----------------------------------------------------------------- derived, in ship terms
 

@@ -186,3 +186,23 @@ def test_frames_taken_while_taking_off_are_registered_for_the_wall_map_only(tmp_
     assert doc["wall_fit"]["take_off_frames"] == [5, 6, 7, 8]
     assert sorted(f["index"] for f in doc["frames"]) == list(range(9, 9 + len(truth)))
     assert "from zero at take-off" in doc["wall_fit"]["method"]
+
+
+def test_a_control_point_on_an_image_outside_the_sweep_is_a_warning_not_silence(tmp_path):
+    # GIVEN the sweep and a survey plan with two control points: one on frame 4, one naming an image the sweep lacks
+    from inspect_pipe.ship import parse_survey_plan
+
+    truth = _write_sweep(tmp_path / "sweep", np.random.default_rng(3))
+    col, row = _apply(truth[4], (CX, CY))
+    plan = parse_survey_plan({
+        "format": "inspect_pipe.survey_plan/1", "vessel": {"name": "MV Test"}, "survey": {"type": "annual survey", "date": "2026-11-29"},
+        "compartment": {"name": "Hold 1"}, "hold": {"aft_bulkhead_frame": 100, "frame_spacing_m": 0.8, "length_m": HOLD_L, "width_m": HOLD_W},
+        "wall": "fore_transverse_bulkhead",
+        "control_points": [{"image": "images/000004.png", "pixel": [CX, CY], "wall_m": [U0 + col * M_TEX, V0 - row * M_TEX]},
+                           {"image": "images/999999.png", "pixel": [10.0, 10.0], "wall_m": [1.0, 1.0]}]}, "plan.yaml")
+    # WHEN it is mosaicked with that plan
+    res = run_mosaic_sweep(tmp_path / "sweep", tmp_path / "out", survey_plan=plan)
+    # THEN the missing image's point is named in a warning, and the other still places the mosaic
+    assert any("control_points.1: image 'images/999999.png' is not a frame of the sweep" in w for w in res.warnings), res.warnings
+    doc = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    assert "offset from 1 control point" in doc["wall_fit"]["method"]

@@ -46,6 +46,7 @@ def _snapshot(report: Path) -> dict[str, bytes]:
     ({"id": "D001", "field": "class", "value": "dent"}, "class 'dent'"),
     ({"id": "D001", "field": "note", "value": "x" * 501}, "note of 501 characters"),
     ({"id": "D001", "field": "note", "value": "a", "by": "me"}, "unknown field 'by'"),
+    ({"id": "D001", "field": "note", "value": "pit \ud800"}, "not valid Unicode text"),  # JSON "\ud800": no file holds it
 ])
 def test_a_malformed_edit_is_refused_with_one_line(doc, message):
     with pytest.raises(ReviewError) as err:

@@ -174,6 +174,16 @@ def test_irregular_frame_spacing_table():
     ({"colour": "red"}, "field 'colour': unknown key"),
     ({"vessel": {"name": "X", "imo": "12"}}, "field 'vessel.imo': '12' is not an IMO number"),
     ({"format": "inspect_pipe.survey_plan/9"}, "field 'format'"),
+    ({"takeoff": {"position_m": [1.0, 0.5, 0.0], "heading_deg": float("nan")}}, "field 'takeoff.heading_deg': Input should be a finite number"),
+    ({"hold": {"aft_bulkhead_frame": float("inf"), "frame_spacing_m": 0.8}}, "field 'hold.aft_bulkhead_frame': Input should be a finite number"),
+    ({"hold": {"aft_bulkhead_frame": 140, "frame_spacing_m": 0.8, "length_m": 12, "width_m": 10},
+      "takeoff": {"position_m": [1000.0, 0.5, 0.0], "heading_deg": 0}}, "takeoff.position_m x = 1000 m lies outside the hold (0 to 12 m)"),
+    ({"hold": {"aft_bulkhead_frame": 140, "frame_spacing_m": 0.8, "length_m": 12, "width_m": 10},
+      "takeoff": {"position_m": [1.0, -7.0, 0.0], "heading_deg": 0}}, "takeoff.position_m y = -7 m lies outside the hold (-5 to 5 m)"),
+    ({"control_points": [{"image": "images/000001.png", "pixel": [-3.0, 10.0], "wall_m": [1.0, 1.0]}]},
+     "field 'control_points.0.pixel.0': -3.0: input should be greater than or equal to 0"),
+    ({"control_points": [{"image": "images/000001.png", "pixel": [3.0, 10.0], "wall_m": [float("inf"), 1.0]}]},
+     "field 'control_points.0.wall_m.0': Input should be a finite number"),
 ])
 def test_nonsense_plans_get_one_line_naming_the_field(change, message):
     doc = yaml.safe_load(PLAN)

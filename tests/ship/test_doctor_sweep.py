@@ -78,3 +78,37 @@ def test_a_plan_given_on_the_command_line_supplies_the_hold_dimensions(tmp_path)
     r = CliRunner().invoke(app, ["doctor", "--sweep", str(sweep), "--survey", str(plan)])
     assert r.exit_code == 0, r.output
     assert "hold dimensions" not in r.output and "take-off tie" not in r.output
+
+
+def test_doctor_checks_a_plan_on_its_own_and_refuses_a_sweep_without_readable_frames(tmp_path):
+    # GIVEN a plan alone: it is judged (one line when good, the one-line error when not)
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(PLAN)
+    r = CliRunner().invoke(app, ["doctor", "--survey", str(plan)])
+    assert r.exit_code == 0 and f"ok  survey plan {plan}: MV Example, Cargo hold No. 1, fore_transverse_bulkhead" in r.output
+    plan.write_text(PLAN.replace("0.7}", "-0.7}"))
+    r = CliRunner().invoke(app, ["doctor", "--survey", str(plan)])
+    assert r.exit_code == 2 and "field 'hold.frame_spacing_m': -0.7" in r.output
+    # AND a sweep whose images are gone is no sweep to judge (not "none of 0 frames carries a position")
+    sweep = _sweep(tmp_path / "s", with_state=True)
+    for p in (sweep / "images").iterdir():
+        p.unlink()
+    r = CliRunner().invoke(app, ["doctor", "--sweep", str(sweep)])
+    assert r.exit_code == 2 and "frames.jsonl: no readable frames" in r.output and "missing" in r.output
+
+
+def test_a_nan_in_a_frames_state_is_no_state_for_that_frame(tmp_path):
+    # GIVEN a sweep whose second frame's position is NaN (json writes NaN; a damaged log can hold one)
+    from inspect_pipe.capture import read_sweep
+
+    sweep = _sweep(tmp_path / "s", with_state=True)
+    lines = (sweep / "frames.jsonl").read_text().splitlines()
+    d = json.loads(lines[1])
+    d["state"]["position_m"] = [float("nan"), 0.0, 1.5]
+    lines[1] = json.dumps(d)
+    (sweep / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    # THEN that frame carries no position (never a NaN into the mosaic's odometry), the others do
+    sw = read_sweep(sweep)
+    assert [f.position_m is None for f in sw.frames] == [False, True, False]
+    r = CliRunner().invoke(app, ["doctor", "--sweep", str(sweep)])
+    assert r.exit_code == 0 and "2 of 3 frames carry a position" in r.output
