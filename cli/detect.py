@@ -17,6 +17,7 @@ import typer
 from typer.core import TyperGroup
 
 from cli._common import StageProgress, one_line_errors
+from inspect_pipe._images import truncation
 from inspect_pipe.errors import InputError
 from inspect_pipe.saliency_defects._core import TILE_PX
 from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
@@ -96,11 +97,9 @@ def list_inputs(inp: Path) -> list[Path]:
 
 def read_image(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
     """(8-bit BGR or grey image, validity mask from an alpha channel or None). Raises InputError."""
-    try:
-        if path.stat().st_size == 0:
-            raise InputError(path, "empty file")
-    except OSError as err:
-        raise InputError(path, f"cannot read ({err.strerror})") from None
+    why = truncation(path)
+    if why:
+        raise InputError(path, why, "copy the image again" if why.startswith("truncated") else "give an image file")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise InputError(path, "unreadable or empty image")

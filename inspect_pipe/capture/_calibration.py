@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from inspect_pipe._files import atomic_write
+from inspect_pipe._images import truncation
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.errors import InputError
 
@@ -252,6 +253,9 @@ def read_grey(path: Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(str(path), "not found" if not path.exists() else "not a file", "give calibration images (PNG, JPEG ...)")
+    why = truncation(path)
+    if why:
+        raise InputError(str(path), why, "copy the image again, or leave it out")
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None or img.size == 0:
         raise InputError(str(path), "unreadable or not an image", "give calibration images (PNG, JPEG ...)")

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from inspect_pipe._images import truncation
 from inspect_pipe.errors import InputError
 
 from ._register import FrameError
@@ -14,35 +15,9 @@ from ._register import FrameError
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm"}
 
 
-def _truncation(path: Path) -> str:
-    """Reason if a JPEG or PNG file is cut short (decoders may silently return a partial image)."""
-    suffix = path.suffix.lower()
-    try:
-        size = path.stat().st_size
-        with path.open("rb") as fh:
-            head = fh.read(8)
-            fh.seek(max(size - 16, 0))
-            tail = fh.read()
-    except OSError as err:
-        return f"cannot read ({err.strerror})"
-    if size == 0:
-        return "empty file"
-    if suffix in {".jpg", ".jpeg"}:
-        if head[:2] != b"\xff\xd8":
-            return "not a JPEG file"
-        if b"\xff\xd9" not in tail:
-            return "truncated JPEG (no end-of-image marker)"
-    if suffix == ".png":
-        if head != b"\x89PNG\r\n\x1a\n":
-            return "not a PNG file"
-        if b"IEND" not in tail:
-            return "truncated PNG (no IEND chunk)"
-    return ""
-
-
 def read_image(path: Path) -> np.ndarray:
     """8-bit BGR (or grey) image; raises :class:`FrameError` with the reason."""
-    why = _truncation(path)
+    why = truncation(path)
     if why:
         raise FrameError(why)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)

@@ -8,6 +8,7 @@ and the saved copy of those options is unchanged; otherwise it and every later s
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -19,6 +20,8 @@ from inspect_pipe.saliency_defects._core import TILE_PX
 from inspect_pipe.saliency_defects._engines import DEFAULT_ENGINE, ENGINES
 
 from ._store import DEFECTS_FORMAT, RunStore, write_json, write_png
+
+log = logging.getLogger("inspect_pipe")
 
 Progress = Callable[[str, int, int], None]
 
@@ -151,6 +154,13 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
         out = M.run_mosaic_folder(Path(cfg.input), store.mosaic_dir, params=params, progress=progress, camera=cfg.camera_model())
     if not out.H:
         raise InputError(cfg.input, out.problems[0] if out.problems else "no frame could be placed")
+    # what `inspect-pipe mosaic` prints, the run prints too: frames left out (unreadable, cut short) and a mosaic
+    # that stands but is not what was asked (one frame only, no overlap): the later steps go on with it
+    if out.warnings:
+        more = f" (and {len(out.warnings) - 1} more, listed in mosaic/mosaic.json)" if len(out.warnings) > 1 else ""
+        log.warning(f"mosaic: {out.warnings[0]}{more}")
+    for problem in out.problems:
+        log.warning(f"mosaic: {problem}")
     doc = store.load_mosaic_json()
     if sweep is None and "frame_size_wh" not in doc:  # frame sizes for coverage of a folder mosaic
         img = M.read_image(M.FolderSource(Path(cfg.input)).path(0))

@@ -185,3 +185,22 @@ def test_validate_gives_one_line_with_the_path():
     with pytest.raises(InputError, match="^F: field 'image_width': 0"):
         validate(CameraCalibration, {"image_width": 0, "image_height": 1, "camera_matrix": K, "distortion_coefficients": [0, 0, 0, 0]}, "F")
     assert validate(MosaicJson, {"format": "inspect_pipe.mosaic/1", "frames": []}, "F").frames == []
+
+
+def test_an_image_cut_short_is_named_before_any_reader_decodes_it(tmp_path):
+    # OpenCV decodes a cut JPEG without an error (grey rows, a stray libjpeg line): every reader asks this first
+    import cv2
+    import numpy as np
+
+    from inspect_pipe._images import truncation
+
+    img = np.random.default_rng(1).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    for ext, words in ((".jpg", "truncated JPEG"), (".png", "truncated PNG")):
+        ok, buf = cv2.imencode(ext, img)
+        whole, cut = tmp_path / f"whole{ext}", tmp_path / f"cut{ext}"
+        whole.write_bytes(buf.tobytes())
+        cut.write_bytes(buf.tobytes()[: len(buf) * 2 // 3])
+        assert truncation(whole) == "" and words in truncation(cut)
+    (tmp_path / "text.jpg").write_text("not an image")
+    (tmp_path / "empty.png").write_bytes(b"")
+    assert truncation(tmp_path / "text.jpg") == "not a JPEG file" and truncation(tmp_path / "empty.png") == "empty file"

@@ -122,7 +122,11 @@ def test_a_single_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path):
     notimg.write_text("not an image")
     tiny = tmp_path / "tiny.png"
     cv2.imwrite(str(tiny), np.full((20, 20, 3), 128, np.uint8))
-    for src, words in ((notimg, "unreadable"), (tiny, "too small")):
+    # and a JPEG cut short (OpenCV decodes it without an error, the missing rows grey)
+    cut = tmp_path / "cut.jpg"
+    ok, buf = cv2.imencode(".jpg", np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8))
+    cut.write_bytes(buf.tobytes()[: len(buf) // 2])
+    for src, words in ((notimg, "not a PNG file"), (tiny, "too small"), (cut, "truncated JPEG")):
         out = tmp_path / f"out_{src.stem}"
         # WHEN detect runs on it (default engine)
         r = _invoke("detect", src, "-o", out)

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from inspect_pipe._images import truncation
 from inspect_pipe.capture._clock import Clock
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture._source import Grab, SourceInfo, default_cam_to_body
@@ -86,6 +87,8 @@ class ReplaySource:
         files = sorted(f for f in self.path.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.is_file())
         if not files:
             raise InputError(str(self.path), "no images found", f"expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
+        if why := truncation(files[0]):
+            raise InputError(str(files[0]), why)
         first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
         if first is None:
             raise InputError(str(files[0]), "unreadable image")
@@ -126,6 +129,8 @@ class ReplaySource:
         if self._i >= len(self._items):
             raise StopIteration
         item = self._items[self._i]
+        if why := truncation(item.image_path if self.kind == "sweep" else item):
+            raise InputError(str(item.image_path if self.kind == "sweep" else item), why)
         if self.kind == "sweep":
             img = cv2.imread(str(item.image_path), cv2.IMREAD_UNCHANGED)
             if img is None:
