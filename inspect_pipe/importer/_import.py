@@ -39,6 +39,10 @@ from inspect_pipe.capture._source import default_cam_to_body
 from inspect_pipe.capture._sweep import SweepWriter
 from inspect_pipe.errors import InputError
 from inspect_pipe.importer._align import Alignment, find_offset, image_motion, interp_quat
+
+#: Below this confidence of the camera clock offset the import is refused (docs/import.md): the right logs of
+#: the measured flights gave 0.79-0.93, another flight's log 0.25, a log of another vehicle 0.00.
+MIN_CONFIDENCE = 0.5
 from inspect_pipe.importer._footage import Footage, open_footage, resample
 from inspect_pipe.importer._logs import FlightTrack, read_flight_log
 
@@ -201,6 +205,11 @@ def import_footage(
         if align.correlation is None:
             raise InputError(str(frames_path), "too few frame pairs could be registered to find the camera clock offset",
                              "give --time-offset S (camera time minus log time)")
+        if align.confidence is not None and align.confidence < MIN_CONFIDENCE:
+            raise InputError(str(log_path), f"does not explain the footage's motion: the best camera clock offset, "
+                             f"{align.camera_clock_offset_s:+.3f} s, has confidence {align.confidence:.2f} (correlation "
+                             f"{align.correlation:.3f}; below {MIN_CONFIDENCE:g} another offset fits as well, or the motion "
+                             "is not this log's)", "give the log of this flight, or --time-offset S when the offset is known")
     secs["align"] = time.perf_counter() - t0
     t_log = tc - align.camera_clock_offset_s
     inside = (t_log >= track.start_s) & (t_log <= track.end_s)

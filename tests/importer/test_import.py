@@ -339,3 +339,24 @@ def test_a_video_s_creation_time_is_read_from_the_container(tmp_path):
     assert t[0] == pytest.approx(1_700_000_000.0 - 2.0) and np.diff(t) == pytest.approx(0.1, abs=1e-3)
     # --video-start wins over the container's time
     assert open_footage(path, video_start="2023-11-14T22:13:20.25Z").frames[0].t_camera_s == pytest.approx(1_700_000_000.25)
+
+
+def test_the_log_of_another_flight_is_refused_not_imported_at_a_guessed_offset(flight, tmp_path):
+    # GIVEN the same hold and wall flown another way (up first, then to port): a log that is not this footage's
+    import yaml
+
+    doc = yaml.safe_load((FIXTURES / "short_sweep.yaml").read_text())
+    doc["world"]["front_wall_texture"]["image"] = str((FIXTURES / doc["world"]["front_wall_texture"]["image"]).resolve())
+    doc["operator"] = [{"t": 0.5, "button": "takeoff"}, {"t": 3.5, "stick": {"vx": 0, "vy": 0, "vz": 0.3, "yaw_rate": 0}},
+                       {"t": 5.0, "stick": {"vx": 0, "vy": 0.3, "vz": 0, "yaw_rate": 0}},
+                       {"t": 9.0, "stick": {"vx": 0, "vy": 0, "vz": 0, "yaw_rate": 0}}]
+    (tmp_path / "other.yaml").write_text(yaml.safe_dump(doc))
+    res = CliRunner().invoke(app, ["fly", "--scenario", str(tmp_path / "other.yaml"), "--log", str(tmp_path / "o.jsonl"),
+                                   "--tlog", str(tmp_path / "other.tlog")])
+    assert res.exit_code == 0, res.output
+    # WHEN this flight's footage is imported with it
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(tmp_path / "other.tlog"), "-o", str(tmp_path / "s")])
+    # THEN one line names the log and the weak fit, and no sweep is written
+    assert res.exit_code == 2, res.output
+    assert "other.tlog: does not explain the footage's motion" in res.output and "confidence 0." in res.output
+    assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "s").exists()
