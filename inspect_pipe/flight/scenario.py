@@ -551,6 +551,9 @@ def _build(d: ScenarioDoc, r: _Checks) -> Scenario:
             events.append(StickEvent(e.t, SpeedCommand(st.vx, st.vy, st.vz, st.yaw_rate)))
     if any(b.t_s < a.t_s for a, b in zip(events, events[1:])):
         raise r.fail("operator", "events are not in time order", "non-decreasing t")
+    for i, f in enumerate(d.faults or []):
+        if f.t > d.duration_s:  # a fault that begins after the flight never happens: a typing error, as an operator event
+            raise r.fail(f"faults[{i}].t", f"is {f.t}", f"a time within the flight's duration_s {d.duration_s:g}")
     faults = tuple(Fault(f.t, f.duration_s, f.fault, f.sensor, f.rate, f.wind_m_s) for f in d.faults or [])
     return Scenario(
         name=d.name, duration_s=d.duration_s, seed=d.seed, world=world, vehicle=vehicle, camera=camera,

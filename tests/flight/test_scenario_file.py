@@ -82,6 +82,7 @@ def _mutate(path, value):
         (("faults", 1, "rate"), 0.3, "faults[1].rate", "link_loss takes no rate"),
         (("world", "wall_textures"), {"top": {"image": "x.png", "m_per_px": 0.01}}, "world.wall_textures.top", "one of front, back, left, right"),
         (("operator", 1, "t"), 11.0, "operator[1].t", "within the flight's duration_s 10"),
+        (("faults", 0, "t"), 800.0, "faults[0].t", "within the flight's duration_s 10"),
     ],
 )
 def test_bad_scenario_names_file_field_and_expectation(tmp_path, path, value, field, expected):
