@@ -18,6 +18,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 from pydantic.fields import FieldInfo
 
+from inspect_pipe._images import truncation
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
 
@@ -494,7 +495,11 @@ class _Checks:
     def path(self, name: str, field: str) -> Path:
         p = (self.base / name).resolve()
         if not p.is_file():
-            raise self.fail(field, f"file {name} not found", "an existing image file, relative to the scenario file")
+            raise self.fail(field, f"file {name} not found" if not p.exists() else f"{name} is not a file",
+                            "an existing image file, relative to the scenario file")
+        why = truncation(p)  # before the flight, not after it (the camera reads the texture at the end)
+        if why:
+            raise self.fail(field, f"{name}: {why}", "a whole PNG or JPEG image")
         return p
 
 

@@ -218,6 +218,9 @@ def open_footage(path: str | Path, *, video_start: str | None = None) -> Footage
     if not path.exists():
         raise InputError(str(path), "not found", "give a folder of images or a video file")
     if path.is_dir():
+        if video_start is not None:  # each image carries its own time: a start time would be ignored in silence
+            raise InputError(f"--video-start {video_start}", f"given with a folder of images ({path})",
+                             "leave it out: each image's EXIF time is used (--time-offset moves them all)")
         return _images(path)
     if path.suffix.lower() in IMAGE_SUFFIXES:
         raise InputError(str(path), "is one image", "give the folder of images")

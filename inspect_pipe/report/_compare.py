@@ -76,6 +76,7 @@ class SurveyRun:
 def load_survey_run(path: Path) -> SurveyRun:
     """A run directory of ``inspect-pipe run`` with its register (report/defects.json)."""
     from inspect_pipe.pipeline import RunStore
+    from inspect_pipe.pipeline._store import read_png
 
     path = Path(path)
     if not path.is_dir():
@@ -98,10 +99,12 @@ def load_survey_run(path: Path) -> SurveyRun:
     for k in ("corrosion", "crack"):
         for kind, into in (("mask", masks), ("prob", probs)):
             p = store.class_map_path("mosaic", k, kind)
-            if p.is_file():
-                m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-                if m is not None and m.shape == mosaic.shape[:2]:
-                    into[k] = m > 0 if kind == "mask" else m
+            if p.is_file():  # a map that is there must be whole and the mosaic's size, as the report demands
+                m = read_png(p, cv2.IMREAD_GRAYSCALE)
+                if m.shape != mosaic.shape[:2]:
+                    raise InputError(str(p), f"{m.shape[1]}x{m.shape[0]} px, the mosaic {mosaic.shape[1]}x{mosaic.shape[0]}",
+                                     f"run `inspect-pipe run ... --rerun-from detect` on {path}")
+                into[k] = m > 0 if kind == "mask" else m
     return SurveyRun(path, reg, doc, defects, wall, mosaic, masks, probs)
 
 

@@ -101,3 +101,23 @@ def test_not_yaml_and_missing_file(tmp_path):
         load_scenario(p)
     with pytest.raises(InputError, match="not found"):
         load_scenario(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize("content, problem", [(b"", "empty file"), (None, "truncated JPEG"), ("dir", "is not a file")])
+def test_a_wall_texture_that_cannot_be_whole_is_refused_before_the_flight(tmp_path, content, problem):
+    # GIVEN a scenario whose front wall texture is empty, cut short, or a folder
+    import cv2
+    import numpy as np
+
+    tex = tmp_path / "wall.jpg"
+    if content == "dir":
+        tex.mkdir()
+    else:
+        ok, buf = cv2.imencode(".jpg", np.full((64, 64, 3), 90, np.uint8))
+        tex.write_bytes(content if content is not None else buf.tobytes()[: len(buf) // 2])
+    doc = copy.deepcopy(GOOD)
+    doc["world"]["front_wall_texture"] = {"image": "wall.jpg", "m_per_px": 0.01}
+    # THEN loading it names the field and the problem: nothing is flown only to fail at the end
+    with pytest.raises(InputError) as err:
+        load_scenario(_write(tmp_path, doc))
+    assert "'world.front_wall_texture.image'" in str(err.value) and problem in str(err.value)
