@@ -48,7 +48,7 @@ def plan(store: RunStore, cfg: RunConfig, *, force: bool = False, rerun_from: st
         if dirty:
             out.append((step.name, "run", "forced" if force else f"--rerun-from {rerun_from}" if rerun_from else "an earlier step ran"))
         elif not step.done(store):
-            out.append((step.name, "run", "output missing"))
+            out.append((step.name, "run", "output missing or damaged"))
             dirty = True
         elif saved is None or saved.get("options") != step_options(step, cfg):
             out.append((step.name, "run", "options changed" if saved else "no record of its options"))

@@ -26,6 +26,18 @@ DEFECTS_FORMAT = "inspect_pipe.defects/1"
 
 
 
+def _whole_json(path: Path) -> bool:
+    """A step's JSON artifact is there and parses (one cut by a crash or a copy is no output: the step runs again)."""
+    try:
+        return isinstance(json.loads(path.read_text(encoding="utf-8")), dict)
+    except (OSError, ValueError):
+        return False
+
+
+def _whole_image(path: Path) -> bool:
+    return path.is_file() and not truncation(path)
+
+
 def read_png(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     if not path.is_file():
         raise InputError(str(path), "missing")
@@ -106,7 +118,7 @@ class RunStore:
         return self.root / "mosaic"
 
     def mosaic_exists(self) -> bool:
-        return (self.mosaic_dir / "mosaic.json").is_file() and (self.mosaic_dir / "mosaic.png").is_file()
+        return _whole_json(self.mosaic_dir / "mosaic.json") and _whole_image(self.mosaic_dir / "mosaic.png")
 
     def load_mosaic_json(self) -> dict:
         from inspect_pipe.report._geo import read_json
@@ -137,7 +149,7 @@ class RunStore:
         return self.root / "detect"
 
     def detect_exists(self) -> bool:
-        return (self.detect_dir / "defects.json").is_file()
+        return _whole_json(self.detect_dir / "defects.json")
 
     def load_detections(self) -> dict:
         from inspect_pipe.report._geo import read_json
@@ -171,4 +183,4 @@ class RunStore:
 
     def report_exists(self) -> bool:
         d = self.report_dir
-        return (d / "report.html").is_file() and (d / "defects.json").is_file()
+        return (d / "report.html").is_file() and _whole_json(d / "defects.json")

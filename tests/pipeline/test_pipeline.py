@@ -152,7 +152,11 @@ def test_rerun_from_and_force_and_missing_output(done_run):
     (store.detect_dir / "defects.json").unlink()
     try:
         steps = plan(store, _cfg(src))
-        assert [a for _, a, _ in steps] == ["n/a", "skip", "run", "run"] and steps[2][2] == "output missing"
+        assert [a for _, a, _ in steps] == ["n/a", "skip", "run", "run"] and steps[2][2] == "output missing or damaged"
+        # AND so do detections cut short (a crash or a copy), which are no output either
+        (store.detect_dir / "defects.json").write_bytes(saved[:100])
+        steps = plan(store, _cfg(src))
+        assert [a for _, a, _ in steps] == ["n/a", "skip", "run", "run"] and steps[2][2] == "output missing or damaged"
     finally:
         (store.detect_dir / "defects.json").write_bytes(saved)
 
