@@ -50,6 +50,10 @@ mosaic.json and the exit is 0 as long as some frames were placed.
 Detector = choices("Detector", DETECTORS)
 
 
+#: A focal length beyond this many pixels is a typing error (a 6,000 px wide frame behind a 2-degree lens is 170,000)
+MAX_FOCAL_PX = 1e6
+
+
 @one_line_errors
 def mosaic(
     input: Path = typer.Argument(..., help="Sweep directory or folder of images (sorted by name)."),
@@ -63,8 +67,8 @@ def mosaic(
 ) -> None:
     detector = detector.value
     plan = load_plan(survey)
-    if focal_px < 0:
-        raise fail(f"--focal-px {focal_px}: must be positive")
+    if focal_px < 0 or focal_px > MAX_FOCAL_PX:
+        raise fail(f"--focal-px {focal_px:g}: must be positive and at most {MAX_FOCAL_PX:g} px")
     if focal_px and camera is not None:
         raise fail("--focal-px and --camera: give one (the camera file has the focal length)")
     cam = load_camera(camera) if camera is not None else None

@@ -99,6 +99,13 @@ class CameraJson(_Open):
     name: str = "camera"
     calibration: dict[str, Any] | None = Field(None, description="source, sha256, rms_px of the calibration; null for a guessed camera")
 
+    @field_validator("K")
+    @classmethod
+    def _focal_positive(cls, v):
+        if not (v[0][0] > 0 and v[1][1] > 0):
+            raise ValueError(f"focal lengths fx {v[0][0]:g}, fy {v[1][1]:g} px: both must be positive")
+        return v
+
 
 class CamToBodyJson(_Open):
     R: Mat3 | None = None

@@ -85,6 +85,8 @@ class Board:
             raise InputError("--board", f"{self.cols}x{self.rows} is too small", "e.g. 9x6 inner corners")
         if not (self.square_m > 0 and math.isfinite(self.square_m)):
             raise InputError("--square-m", f"{self.square_m} is not a positive length")
+        if self.square_m > 1.0:  # a printed or plate board: millimetres to centimetres a square
+            raise InputError("--square-m", f"{self.square_m:g} m a square", "the side of one square in metres, e.g. 0.025")
         if self.kind == "charuco":
             if self.marker_m is None or not (0 < self.marker_m < self.square_m):
                 raise InputError("--marker-m", f"{self.marker_m}: a ChArUco board needs the marker side, smaller than the square")

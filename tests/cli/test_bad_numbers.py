@@ -30,6 +30,7 @@ def frames(tmp_path: Path) -> Path:
     (["mosaic", "{frames}", "--focal-px", "nan"], "--focal-px nan: must be a finite number"),
     (["mosaic", "{frames}", "--focal-px", "inf"], "--focal-px inf: must be a finite number"),
     (["mosaic", "{frames}", "--seed", "-1"], "--seed"),
+    (["mosaic", "{frames}", "--focal-px", "1e30"], "--focal-px 1e+30: must be positive and at most 1e+06 px"),
     (["run", "{frames}", "--area-m", "nan", "--m-per-px", "0.003"], "--area-m nan: must be a finite number"),
     (["run", "{frames}", "--area-m", "1e-9", "--m-per-px", "0.003"], "below 0.1 m"),
     (["run", "{frames}", "--m-per-px", "-1"], "--m-per-px: -1 is not positive"),

@@ -204,3 +204,12 @@ def test_an_image_cut_short_is_named_before_any_reader_decodes_it(tmp_path):
     (tmp_path / "text.jpg").write_text("not an image")
     (tmp_path / "empty.png").write_bytes(b"")
     assert truncation(tmp_path / "text.jpg") == "not a JPEG file" and truncation(tmp_path / "empty.png") == "empty file"
+
+
+def test_a_sweep_camera_with_a_negative_focal_length_is_refused_in_one_line():
+    from inspect_pipe.errors import InputError
+    from inspect_pipe.formats import CameraJson, validate
+
+    cam = {"K": [[-651.0, 0, 376], [0, 651.0, 240], [0, 0, 1]], "dist": [0, 0, 0, 0, 0], "width": 752, "height": 480}
+    with pytest.raises(InputError, match="focal lengths fx -651, fy 651 px: both must be positive"):
+        validate(CameraJson, cam, "sweep.json", "")
