@@ -10,7 +10,7 @@ from typing import Callable
 import inspect_pipe
 from inspect_pipe.errors import InputError
 
-from ._steps import STEP_NAMES, STEPS, Progress, RunConfig, input_kind, step_options
+from ._steps import STEP_NAMES, STEPS, Progress, RunConfig, check_input, input_kind, step_options
 from ._store import RunStore
 
 
@@ -68,11 +68,11 @@ def run_pipeline(
     log: Callable[[str], None] = print,
 ) -> RunOutcome:
     """Run every step that is not done (see ``plan``) on ``run_dir``."""
+    kind = check_input(cfg.input)  # before the run directory is made
     store = RunStore(run_dir)
     store.root.mkdir(parents=True, exist_ok=True)
     steps = plan(store, cfg, force=force, rerun_from=rerun_from)
     doc = store.load_run()
-    kind = input_kind(cfg.input)
     doc["input"] = {"spec": cfg.input, "kind": kind,
                     "sweep": str(Path(cfg.input).resolve()) if kind == "sweep" else None}
     doc["software"] = f"inspect_pipe {inspect_pipe.__version__}"

@@ -104,6 +104,29 @@ def input_kind(spec: str) -> str:
     raise InputError(spec, "not a sweep directory or folder of images")
 
 
+def check_input(spec: str) -> str:
+    """The input's kind, after the checks that need no step to run: the scenario loads, the folder has images,
+    the sweep has readable frames. A run directory is made only for an input that passes (an empty folder or
+    a missing scenario left a run.json behind)."""
+    kind = input_kind(spec)
+    if kind == "fly":
+        from inspect_pipe.flight.scenario import load_scenario
+
+        load_scenario(spec[4:] if spec.startswith("fly:") else spec)
+    elif kind == "folder":
+        from inspect_pipe.mosaic import FolderSource
+
+        FolderSource(Path(spec))
+    else:
+        from inspect_pipe.capture import read_sweep
+
+        sweep = read_sweep(spec)
+        if not sweep.frames:
+            why = f" ({sweep.problems[0]})" if sweep.problems else ""
+            raise InputError(str(Path(spec) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
+    return kind
+
+
 # ---------------------------------------------------------------------------------- capture
 
 

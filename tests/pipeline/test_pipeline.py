@@ -187,3 +187,13 @@ def test_run_many_without_dask_and_with_a_local_cluster(tmp_path, done_run):
     outs = run_many(jobs, workers=2)
     assert sorted(str(o.run_dir) for o in outs) == sorted(str(d) for d, _ in jobs)
     assert all(o.error is None for o in outs)
+
+
+def test_an_input_that_cannot_run_leaves_no_run_directory(tmp_path):
+    # an empty folder, a missing scenario: one line, exit 2, and no RUN/run.json left behind
+    (tmp_path / "empty").mkdir()
+    for spec, words in ((str(tmp_path / "empty"), "no images found"), (f"fly:{tmp_path / 'nope.yaml'}", "scenario file not found")):
+        out = tmp_path / "run"
+        res = runner.invoke(app, ["run", spec, "-o", str(out)])
+        assert res.exit_code == 2 and words in res.output, res.output
+        assert not out.exists()
