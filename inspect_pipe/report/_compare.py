@@ -87,6 +87,9 @@ def load_survey_run(path: Path) -> SurveyRun:
     doc = read_json(reg)
     if doc.get("format") != REGISTER_FORMAT or not isinstance(doc.get("defects"), list):
         raise InputError(str(reg), f"field 'format': {doc.get('format')!r}", f"expected {REGISTER_FORMAT!r} with a list of defects")
+    from inspect_pipe.formats import RegisterJson, validate
+
+    validate(RegisterJson, doc, str(reg), "docs/report.md describes the register")  # names the field, as report and review do
     defects = [Defect.from_json(d, str(reg)) for d in doc["defects"] if isinstance(d, dict)]
     store = RunStore(path)
     mdoc = store.load_mosaic_json()
