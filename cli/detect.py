@@ -319,6 +319,10 @@ def train(
                 sources[c] = (set_name, sd.labelled_set(data / set_name, split="train"))
     if only:
         want = {w.strip() for w in only.split(",") if w.strip()}
+        known = set(sd.SETS.values()) | ({cls} if cls else set())
+        unknown = sorted(want - known)
+        if unknown:
+            raise InputError(f"--only {only}", f"unknown class {unknown[0]!r}", f"one or more of {', '.join(sorted(known))}")
         sources = {c: v for c, v in sources.items() if c in want}
     if not sources:
         raise InputError(data, "no labelled set found", f"expected one of {', '.join(sd.SETS)} or images/ + masks/")
