@@ -457,7 +457,8 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(str(path), "scenario file not found", "give the path of a .yaml scenario")
+        raise InputError(str(path), "scenario file not found" if not path.exists() else "is a directory, not a scenario file",
+                         "give the path of a .yaml scenario")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:

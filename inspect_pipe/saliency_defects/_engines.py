@@ -206,7 +206,8 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
         from ._model import load_model
 
         if not path.is_file():
-            raise InputError(path, "model file not found", "train one with 'inspect-pipe detect train'")
+            raise InputError(path, "model file not found" if not path.exists() else "is a directory, not a model file",
+                             "train one with 'inspect-pipe detect train'")
         try:
             return _Saliency(engine, path, load_model(path), tile_multiple=64)
         except ValueError as err:

@@ -82,7 +82,7 @@ def load_fused_params(path: Path) -> dict:
     """Read and check a parameter file. Raises ValueError with a one-line reason."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError("fused parameter file not found")
+        raise ValueError("fused parameter file not found" if not path.exists() else "a directory, not a fused parameter file")
     try:
         p = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):

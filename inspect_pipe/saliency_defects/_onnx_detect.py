@@ -91,7 +91,7 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
 
     path = Path(path)
     if not path.is_file():
-        raise ValueError("ONNX model file not found")
+        raise ValueError("ONNX model file not found" if not path.exists() else "a directory, not an ONNX model file")
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
