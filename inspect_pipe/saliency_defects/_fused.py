@@ -107,8 +107,14 @@ def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | N
 
     params_path = Path(params_path or default_fused_path())
     p = load_fused_params(params_path)
-    sal = load_model(Path(saliency_path or default_model_path()))
-    onx = load_onnx_model(Path(onnx_path or default_onnx_path()), threads=threads)
+    sal_path, onx_path = Path(saliency_path or default_model_path()), Path(onnx_path or default_onnx_path())
+    for engine, used in (("saliency", sal_path), ("onnx", onx_path)):
+        fitted = (p.get("engines") or {}).get(engine) or {}
+        if fitted.get("sha256") and used.is_file() and sha256_of(used) != fitted["sha256"]:
+            raise ValueError(f"fused parameters were fitted for other {engine} weights than {used.name}'s (its SHA-256 is not "
+                             f"the one recorded for {fitted.get('file')!r}; refit: python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json)")
+    sal = load_model(sal_path)
+    onx = load_onnx_model(onx_path, threads=threads)
     if onnx_path is None:  # the shipped network: condition states from the shipped v3 head
         onx = with_condition_states(onx, threads=threads)
     cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}

@@ -109,6 +109,9 @@ def test_cli_fused_engine_writes_the_three_outputs(tmp_path):
 @pytest.mark.parametrize("content,words", [
     (None, "not found"), ("{not json", "not JSON"), ('{"format": "x/9", "classes": {}}', "format"),
     ('{"format": "inspect_pipe.defect_fused/1", "classes": {"crack": {"weight_saliency": 2, "threshold_u8": 9}}}', "weight"),
+    # fitted for other network weights than the ones it would mix: refused, not mixed at weights chosen for another map
+    ('{"format": "inspect_pipe.defect_fused/1", "classes": {"crack": {"weight_saliency": 0.3, "threshold_u8": 101}},'
+     ' "engines": {"onnx": {"file": "defects_unet_v1.onnx", "sha256": "' + "0" * 64 + '"}}}', "fitted for other onnx weights"),
 ])
 def test_bad_parameter_file_exits_2_with_one_line(tmp_path, content, words):
     bad = tmp_path / "p.json"
