@@ -89,7 +89,7 @@ def mosaic(
         if scaled_note(used):
             typer.echo(scaled_note(used), err=True)
     n = result.n_input
-    unplaced = len(result.registration.unplaced)
+    unplaced = sum(f not in result.H for f in result.registration.unplaced)  # a lone frame is placed as its own mosaic
     typer.echo(
         f"{out / 'mosaic.json'}: {result.n_placed}/{n} frames placed in {len(result.images)} mosaic(s), "
         f"{unplaced} unplaced, {time.monotonic() - t0:.1f} s"
