@@ -240,7 +240,7 @@ def run(
     input: Annotated[Path, typer.Argument(help="An image, a folder of images, or a mosaic output folder.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default takes condition states from defects_unet_v3.onnx's head, a given network only from its own), .npz (saliency) or .json (fused: its parameters).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default, defects_unet_v4.onnx, gives condition states from its own head, as a given network with one does; a network without one, such as the earlier defects_unet_v1.onnx, gets v4's states for the corrosion it decides), .npz (saliency) or .json (fused: its parameters).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = TILE_PX,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
@@ -284,14 +284,14 @@ def train(
     out: Annotated[Path, typer.Option("--out", "-o", help="Model file to write (.npz).")],
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
-    version: Annotated[str, typer.Option("--version", help="Version recorded in the model.")] = "1",
+    version: Annotated[str, typer.Option("--version", help="Version recorded in the model (saliency tables: 1; the onnx network: 4).")] = "1",
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
     Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
-    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v3.onnx --version 3
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v4.onnx --version 4
     """
     import inspect_pipe.saliency_defects as sd
 

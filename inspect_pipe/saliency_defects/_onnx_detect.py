@@ -2,7 +2,7 @@
 inference with overlap, decisions and regions in the same form as the saliency engine.
 
 No PyTorch here: the network was trained and exported by ``_onnx_train`` and ships as
-``models/defects_unet_v3.onnx`` (EfficientNet-Lite0 encoder, U-Net decoder, int8). Its output
+``models/defects_unet_v4.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8). Its output
 maps are at 1/2 resolution (metadata ``output.stride`` 2; a model with stride 1 or none gives
 full-resolution maps) and are up-sampled here: the class probabilities and, for models with a
 ``severity`` record, the condition-state logits (fair, poor, severe) of corrosion pixels.
@@ -41,9 +41,11 @@ LICENCE = (
     "Research and evaluation use only."
 )
 #: Tiling (the core's grid and its TILE_PX): overlap margin (px, a multiple of MULTIPLE_OF); it
-#: covers the EfficientNet-Lite0 encoder's receptive field, so tiles equal whole-image inference
-#: (96 px, enough for the earlier network, left differences of up to 27 grey levels; 192 px, 9).
-MARGIN_PX = 256
+#: covers the encoder's receptive field, so tiles equal whole-image inference. EfficientNet-Lite0
+#: (v3) needed 256 px (96 px, enough for the earlier network, left differences of up to 27 grey
+#: levels; 192 px, 9); Lite1 (v4), four blocks deeper at 1/16, 320 px (256 px left up to 61 grey
+#: levels on the surface map of an 1800 x 1400 image in 768 px tiles; 320 px, none).
+MARGIN_PX = 320
 #: Images up to this many pixels run in one pass.
 WHOLE_MAX_PX = 2048 * 1536
 
@@ -65,8 +67,8 @@ class OnnxModel:
     #: ``calibration``). The maps this engine returns are calibrated; that class's threshold is 128.
     calibration: dict[str, tuple[int, float]] = field(default_factory=dict)
     #: For a network without a condition-state head: the network whose head gives the condition
-    #: state of each corrosion pixel this one decides (the shipped default: v3's, see
-    #: :func:`with_condition_states`); None: no states.
+    #: state of each corrosion pixel this one decides (v4's, see :func:`with_condition_states`);
+    #: None: no states.
     states_model: OnnxModel | None = None
     #: Scale of the image the ``states_model`` sees (its states are brought back to full size by
     #: nearest neighbour): the condition-state labels are coarse polygons, and a smaller input
@@ -386,18 +388,19 @@ STATES_SCALE = 0.375
 
 
 def default_onnx_path() -> Path:
-    """The default network: the half-resolution U-Net (v1). The pretrained-encoder network v3 has
-    the higher mean validation F (0.852 against 0.833; corrosion 0.775 against 0.725), but in the
-    demo flight it finds 7 of 12 known defects (none of the cracks) against v1's 11, so v1 still
-    decides and v3 gives the condition states (docs/detect_onnx.md)."""
-    return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
+    """The default network, v4: EfficientNet-Lite1 encoder, U-Net decoder, int8, with its own
+    condition-state head. Chosen on the validation images (mean F 0.854 against v3's 0.852 and
+    v1's 0.833; corrosion 0.789, states 0.527) and checked on the demo flight, where it finds 11 of
+    12 known defects, as v1 does, where v3 found 7 (docs/detect_onnx.md)."""
+    return Path(__file__).parent / "models" / "defects_unet_v4.onnx"
 
 
 def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
     """``model`` with the shipped condition-state network attached when it has no head of its
-    own: corrosion it decides gets the state of v3's head (validation mean F1 of fair / poor /
-    severe 0.446 with v1's decisions at ``STATES_SCALE`` and the offsets recorded for them, 0.487
-    with v3's own; docs/detect_onnx.md).
+    own (the default v4 has one: returned as it is): corrosion a head-less network such as v1
+    decides gets the state of v4's head (validation mean F1 of fair / poor / severe 0.476 with v1's
+    decisions at ``STATES_SCALE`` and the offsets recorded for them, 0.527 with v4's own;
+    docs/detect_onnx.md).
     Costs one more network pass, on the image at ``scale`` (default ``STATES_SCALE``) of its size,
     on images where corrosion is asked for."""
     if model.severity_output is not None or "corrosion" not in model.classes:
@@ -427,6 +430,6 @@ def attached_bias(states: OnnxModel, decider: OnnxModel, scale: float) -> tuple[
 
 
 def condition_state_onnx_path() -> Path:
-    """The network with a condition-state head (v3: EfficientNet-Lite0 U-Net, int8):
-    ``detect --model`` it for ``NAME.severity.png`` and the corrosion regions' states."""
-    return Path(__file__).parent / "models" / "defects_unet_v3.onnx"
+    """The network whose condition-state head a head-less network borrows (:func:`with_condition_states`):
+    the default, v4 (EfficientNet-Lite1 U-Net, int8)."""
+    return Path(__file__).parent / "models" / "defects_unet_v4.onnx"

