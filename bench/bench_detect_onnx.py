@@ -169,11 +169,14 @@ def run(data: Path) -> str:
     data = Path(data)
     root = data / "defects"
     sal = load_model(default_model_path())
-    # the default as `detect` loads it: v1 decides, the states network's head gives the states
+    # the default as `detect` loads it (v4, its own head; a head-less default would borrow the states network's),
+    # and the earlier default, v1, as `detect --model defects_unet_v1.onnx` loads it (v4's states borrowed)
     onx = with_condition_states(load_onnx_model(default_onnx_path(), threads=1), threads=1)
-    alt = load_onnx_model(condition_state_onnx_path(), threads=1)  # that network alone (`--model`)
-    alt_name = f"onnx `--model {condition_state_onnx_path().name}`"
-    dflt_name = f"**onnx** (`{default_onnx_path().name}`, states `{condition_state_onnx_path().name}`)"
+    earlier = default_onnx_path().parent / "defects_unet_v1.onnx"
+    alt = with_condition_states(load_onnx_model(earlier, threads=1), threads=1)
+    alt_name = f"onnx `--model {earlier.name}` (the default until 2026-11-29)"
+    own = onx.states_model is None
+    dflt_name = f"**onnx** (`{default_onnx_path().name}`" + (", its own states)" if own else f", states `{condition_state_onnx_path().name}`)")
     fus = load_fused_model(threads=1)
     t0 = time.perf_counter()
     res = {}
