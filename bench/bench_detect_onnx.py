@@ -169,12 +169,11 @@ def run(data: Path) -> str:
     data = Path(data)
     root = data / "defects"
     sal = load_model(default_model_path())
-    # the default as `detect` loads it (v4, its own head; a head-less default would borrow the states network's),
-    # and the earlier default, v1, as `detect --model defects_unet_v1.onnx` loads it (v4's states borrowed)
+    # the default as `detect` loads it (v1 decides, the states network's head gives the states), and the states
+    # network deciding alone (`detect --model defects_unet_v4.onnx`)
     onx = with_condition_states(load_onnx_model(default_onnx_path(), threads=1), threads=1)
-    earlier = default_onnx_path().parent / "defects_unet_v1.onnx"
-    alt = with_condition_states(load_onnx_model(earlier, threads=1), threads=1)
-    alt_name = f"onnx `--model {earlier.name}` (the default until 2026-11-29)"
+    alt = load_onnx_model(condition_state_onnx_path(), threads=1)
+    alt_name = f"onnx `--model {condition_state_onnx_path().name}`"
     own = onx.states_model is None
     dflt_name = f"**onnx** (`{default_onnx_path().name}`" + (", its own states)" if own else f", states `{condition_state_onnx_path().name}`)")
     fus = load_fused_model(threads=1)

@@ -240,7 +240,7 @@ def run(
     input: Annotated[Path, typer.Argument(help="An image, a folder of images, or a mosaic output folder.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default, defects_unet_v4.onnx, gives condition states from its own head, as a given network with one does; a network without one, such as the earlier defects_unet_v1.onnx, gets v4's states for the corrosion it decides), .npz (saliency) or .json (fused: its parameters).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default, defects_unet_v1.onnx, takes condition states from defects_unet_v4.onnx's head, as any network without a head of its own does; defects_unet_v4.onnx decides with its own), .npz (saliency) or .json (fused: its parameters).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = TILE_PX,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
