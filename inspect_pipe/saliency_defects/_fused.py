@@ -241,11 +241,11 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
 
 
 #: CPU time of one 752 x 480 frame (corrosion + crack, whole detection, one thread) of each engine,
-#: as loaded by ``detect`` (onnx: v1 deciding, v4's condition states at ``STATES_SCALE``; fused: with
-#: the saliency tables), the median of 12 interleaved rounds in one process, two runs (2026-11-29
-#: 11:20, AMD EPYC, 2 cores; v4 deciding alone 40-41 ms in runs of the same hour; docs/detect_onnx.md).
+#: as loaded by ``detect`` (onnx: v1 deciding, v4's condition states at ``STATES_SCALE`` 0.5; fused:
+#: with the saliency tables), the median of 12 interleaved rounds in one process, two runs (2026-11-29
+#: 11:35, AMD EPYC, 2 cores; v4 deciding alone 40-41 ms in runs of the same hour; docs/detect_onnx.md).
 #: The Intel Xeon host of 2026-11-27 ran the same frame about 1.5x slower (saliency 85 ms).
-FRAME_CPU_MS = {"onnx": 35.0, "saliency": 58.0, "fused": 83.0}
+FRAME_CPU_MS = {"onnx": 37.0, "saliency": 56.0, "fused": 84.0}
 #: The per-frame time target of the default engine (issue 21: 60 ms on one core).
 FRAME_MS_TARGET = 60.0
 #: The default engine is the fastest whose mean validation figure is within this of the best.

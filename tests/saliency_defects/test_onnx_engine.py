@@ -357,8 +357,8 @@ def test_default_engine_gives_condition_states_from_the_v4_head(tmp_path):
     small = cv2.resize(img, (round(w * sc), round(h * sc)), interpolation=cv2.INTER_AREA)
     v4 = od.load_onnx_model(od.condition_state_onnx_path())
     bias = od.attached_bias(v4, od.load_onnx_model(od.default_onnx_path()), sc)
-    rec = next(a for a in v4.meta["severity"]["attached"] if a["decider"] == V1.name)
-    assert bias == tuple(rec["logit_bias"])  # (for v1 at 0.375 the grid's best is v4's own (0, 0, 0.25))
+    rec = next(a for a in v4.meta["severity"]["attached"] if a["decider"] == V1.name and a["scale"] == sc)
+    assert bias == tuple(rec["logit_bias"]) and bias != v4.severity_bias
     _, states = od.onnx_maps(small, dataclasses.replace(v4, severity_bias=bias), kinds=("corrosion",))
     states = cv2.resize(states, (w, h), interpolation=cv2.INTER_NEAREST)
     assert np.array_equal(d.severity, np.where(d.mask, states, 0))
