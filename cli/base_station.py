@@ -41,11 +41,12 @@ def base_station(
     keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:
     """Serve the surveyor's base station."""
-    from inspect_pipe.flight.base_station import build_station, is_loopback_host, serve
+    from inspect_pipe.flight.base_station import build_station, check_listen, is_loopback_host, serve
 
     token = web_server_token(host, token, certfile, keyfile)
     if command_log.exists() and command_log.is_dir():
         raise InputError(str(command_log), "is a directory", "give a file path for the command log")
+    check_listen(host, port)  # before a vehicle is connected and the token printed
     station = build_station(vehicle, host=host, port=port, token=token, command_log=command_log, tls=certfile is not None)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     typer.echo(f"base station for {station.vehicle_name}: {'https' if certfile else 'http'}://{shown}:{port}/")

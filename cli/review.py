@@ -37,10 +37,11 @@ def review(
     keyfile: Annotated[Optional[Path], typer.Option("--keyfile", help="PEM private key of --certfile")] = None,
 ) -> None:
     """Review the register in the browser."""
-    from inspect_pipe.flight.base_station import is_loopback_host, serve
+    from inspect_pipe.flight.base_station import check_listen, is_loopback_host, serve
     from inspect_pipe.review_app import ReviewConfig, ReviewServer, open_review
 
     token = web_server_token(host, token, certfile, keyfile)
+    check_listen(host, port)  # before the banner and the token are printed
     rv, store, cfg = open_review(run_dir, reviewer)
     server = ReviewServer(rv, store, cfg, ReviewConfig(host=host, port=port, token=token, tls=certfile is not None, render_after_s=render_after))
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host

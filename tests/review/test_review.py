@@ -278,6 +278,8 @@ def test_review_command_bad_input_is_one_line_exit_2(review_run, tmp_path):
         (["review", str(tmp_path / "bare"), "--reviewer", "J"], "the run has no register"),
         (["review", str(run)], "--reviewer: missing and the survey plan names no surveyor"),
         (["review", str(run), "--reviewer", "J", "--host", "0.0.0.0", "--token", "short"], "--token: too short"),
+        # an address not of this machine: refused before the banner and the token are printed
+        (["review", str(run), "--reviewer", "J", "--host", "999.999.1.1"], "999.999.1.1:8766: cannot listen"),
     ]:
         res = runner.invoke(app, args)
         assert res.exit_code == 2, res.output

@@ -104,18 +104,24 @@ def check_tls(certfile: Path | None, keyfile: Path | None) -> None:
                          "e.g. openssl req -x509 -newkey rsa:2048 -nodes -keyout key.pem -out cert.pem -days 365") from None
 
 
+def check_listen(host: str, port: int) -> None:
+    """One-line InputError when ``host:port`` cannot be bound (an address not of this machine, a port in use):
+    called before the banner and the token are printed, and again by :func:`serve`."""
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host, port))
+    except (OSError, OverflowError) as err:
+        why = getattr(err, "strerror", None) or str(err)
+        raise InputError(f"{host}:{port}", f"cannot listen ({why})", "choose another --port or --host") from None
+
+
 def serve(station: Any, *, host: str, port: int, certfile: Path | None = None, keyfile: Path | None = None) -> None:
     """Blocking; Ctrl-C stops it. With ``certfile``/``keyfile``: HTTPS and WSS (uvicorn's TLS)."""
     import uvicorn
 
     check_tls(certfile, keyfile)
-
-    try:
-        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            s.bind((host, port))
-    except OSError as err:
-        raise InputError(f"{host}:{port}", f"cannot listen ({err.strerror})", "choose another --port or --host") from None
+    check_listen(host, port)
     tls = {"ssl_certfile": str(certfile), "ssl_keyfile": str(keyfile)} if certfile else {}
     # no access log: nothing a request carries ends up in a log
     uvicorn.Server(uvicorn.Config(station.app(), host=host, port=port, log_level="warning", access_log=False, ws_max_size=65536, **tls)).run()
