@@ -6,9 +6,14 @@ Each command lives in its own module of this package and is registered here, onc
 from __future__ import annotations
 
 import inspect
+import os
 from typing import Annotated
 
 import typer
+
+# FFmpeg (under OpenCV's video reader) prints its own lines for a damaged file ("moov atom not found") before the
+# command's one-line error; quiet unless the user sets the level (OpenCV reads it when it first opens a video)
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 import inspect_pipe
 from cli._common import VerbosityGroup

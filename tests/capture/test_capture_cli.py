@@ -86,3 +86,26 @@ def test_doctor_lists_every_backend(tmp_path):
     names = [line.split()[2] for line in res.output.splitlines()]
     assert {"v4l2", "ids", "replay", "sim", "mavlink"} <= set(names)
     assert all(line[:3] in ("ok ", "no ") for line in res.output.splitlines())
+
+
+def test_a_cut_video_is_one_line_without_ffmpegs_own_chatter(tmp_path):
+    # GIVEN an MP4 cut before its index (a copy interrupted): FFmpeg prints "moov atom not found" on its own
+    import os
+    import subprocess
+    import sys
+
+    import cv2
+    import numpy as np
+
+    vw = cv2.VideoWriter(str(tmp_path / "v.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (64, 48))
+    for i in range(20):
+        vw.write(np.full((48, 64, 3), 10 * i, np.uint8))
+    vw.release()
+    (tmp_path / "cut.mp4").write_bytes((tmp_path / "v.mp4").read_bytes()[:1000])
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    # WHEN the command replays it (a real process: the console script's environment, not the test runner's)
+    res = subprocess.run([sys.executable, "-m", "cli.main", "capture", "--source", f"replay:{tmp_path / 'cut.mp4'}",
+                          "-o", str(tmp_path / "s")], capture_output=True, text=True, env=env, timeout=120)
+    # THEN exactly one line, the command's
+    lines = [ln for ln in (res.stdout + res.stderr).splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and "cut.mp4" in lines[0], lines
