@@ -284,7 +284,7 @@ def train(
     out: Annotated[Path, typer.Option("--out", "-o", help="Model file to write (.npz).")],
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
-    version: Annotated[str, typer.Option("--version", help="Version recorded in the model (saliency tables: 1; the onnx network: 4).")] = "1",
+    version: Annotated[Optional[str], typer.Option("--version", help="Version recorded in the model (default: the shipped one's, saliency tables 1, the onnx network 4).")] = None,
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
 ) -> None:
@@ -298,7 +298,8 @@ def train(
     if out.is_dir():  # checked before an hour of training, not after it
         raise InputError(str(out), "is a directory", "give the model file to write, e.g. -o models/defects.onnx")
     if engine is Engine.onnx:
-        return _train_onnx(data, out, version, time_budget_min)
+        return _train_onnx(data, out, version or "4", time_budget_min)
+    version = version or "1"
     if engine is Engine.fused:
         raise InputError("--engine fused", "has no training of its own",
                          "fit its weights with 'python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json'")
