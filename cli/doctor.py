@@ -35,7 +35,7 @@ Exit 0 (the list is the result, whatever it says); 2 when the sweep cannot be re
 @one_line_errors
 def doctor(
     sweep: Annotated[Optional[Path], typer.Option("--sweep", help="A sweep: what it still lacks for a georeferenced report.")] = None,
-    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " With --sweep: judged with this plan.")] = None,
+    survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP + " With --sweep: judged with this plan; alone: checked, one line before the backends.")] = None,
 ) -> None:
     if sweep is not None:
         from inspect_pipe.capture import read_sweep
