@@ -11,6 +11,7 @@ from cli._common import SURVEY_HELP, StageProgress, choices, console, load_plan,
 from inspect_pipe._files import write_json
 from inspect_pipe.capture import load_camera
 from cli.detect import DEFAULT, ENGINE_HELP, Engine, Kind
+from cli.mosaic import MAX_FOCAL_PX
 from inspect_pipe.errors import InputError
 from inspect_pipe.pipeline import STEP_NAMES
 from inspect_pipe.report import SCHEMES
@@ -86,8 +87,8 @@ def build_config(input: str, *, kinds: str, keyframe_spacing: float, scheme: str
     for name, value in (("--m-per-px", m_per_px), ("--focal-px", focal_px)):
         if value is not None and value <= 0:
             raise InputError(name, f"{value:g} is not positive")
-    if focal_px is not None and focal_px > 1e6:
-        raise InputError("--focal-px", f"{focal_px:g} px", "at most 1e6 px (a focal length in pixels, e.g. 618)")
+    if focal_px is not None and focal_px > MAX_FOCAL_PX:
+        raise InputError("--focal-px", f"{focal_px:g} px", f"at most {MAX_FOCAL_PX:g} px (a focal length in pixels, e.g. 618)")
     if keyframe_spacing < 0:
         raise InputError("--keyframe-spacing", f"{keyframe_spacing:g} is negative", "0: mosaic only")
     k = ("corrosion", "crack") if kinds == "all" else tuple(x.strip() for x in kinds.split(",") if x.strip())

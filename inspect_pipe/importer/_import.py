@@ -39,12 +39,12 @@ from inspect_pipe.capture._source import default_cam_to_body
 from inspect_pipe.capture._sweep import SweepWriter
 from inspect_pipe.errors import InputError
 from inspect_pipe.importer._align import Alignment, find_offset, image_motion, interp_quat
-
-#: Below this confidence of the camera clock offset the import is refused (docs/import.md): the right logs of
-#: the measured flights gave 0.79-0.93, another flight's log 0.25, a log of another vehicle 0.00.
-MIN_CONFIDENCE = 0.5
 from inspect_pipe.importer._footage import Footage, open_footage, resample
 from inspect_pipe.importer._logs import FlightTrack, read_flight_log
+
+#: Below this confidence of the camera clock offset the import is refused (docs/import.md): the right logs of
+#: the measured flights gave 0.79-0.93, another flight's log 0.13-0.25, a log of another vehicle 0.00.
+MIN_CONFIDENCE = 0.5
 
 __all__ = ["ImportResult", "import_footage", "DEFAULT_HFOV_DEG", "MAX_OFFSET_S"]
 

