@@ -240,7 +240,7 @@ def run(
     input: Annotated[Path, typer.Argument(help="An image, a folder of images, or a mosaic output folder.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
     kind: Annotated[Kind, typer.Option("--kind", help="Defect classes: all = corrosion + crack.")] = Kind.all,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default, defects_unet_v1.onnx, takes condition states from defects_unet_v4.onnx's head, as any network without a head of its own does; defects_unet_v4.onnx decides with its own), .npz (saliency) or .json (fused: its parameters).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file of the engine (default: the shipped one), or the name of a shipped one: .onnx (onnx; the shipped default, defects_unet_v5.onnx, decides and gives condition states with its own head; defects_unet_v1.onnx and any other network without a head borrow v5's states), .npz (saliency) or .json (fused: its parameters).")] = None,
     tile_px: Annotated[int, typer.Option("--tile-px", help="Tile size for large images (multiple of 64; onnx: of 16).", min=256)] = TILE_PX,
     engine: Annotated[Engine, typer.Option("--engine", help=ENGINE_HELP)] = DEFAULT,
 ) -> None:
@@ -291,14 +291,14 @@ def train(
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
     Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
-    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v4.onnx --version 4
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --version 5
     """
     import inspect_pipe.saliency_defects as sd
 
     if out.is_dir():  # checked before an hour of training, not after it
         raise InputError(str(out), "is a directory", "give the model file to write, e.g. -o models/defects.onnx")
     if engine is Engine.onnx:
-        return _train_onnx(data, out, version or "4", time_budget_min)
+        return _train_onnx(data, out, version or "5", time_budget_min)
     version = version or "1"
     if engine is Engine.fused:
         raise InputError("--engine fused", "has no training of its own",

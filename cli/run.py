@@ -186,7 +186,7 @@ def run(
     verify: Annotated[bool, typer.Option("--verify", help="Sweep input: check every file against the sha256 in its COMPLETE marker; frames that differ are unplaced.")] = False,
     survey: Annotated[Optional[Path], typer.Option("--survey", help=SURVEY_HELP)] = None,
     camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera calibration (camera.yaml from `inspect-pipe calibrate`, or ROS camera_info): the simulated camera of fly: inputs, and K and distortion for the mosaic (over a sweep's own).")] = None,
-    model: Annotated[Optional[Path], typer.Option("--model", help="Detect step: the engine's model file, or the name of a shipped one (default: the shipped network, with condition states from defects_unet_v4.onnx's head, which the report turns into hard rust and the fair / poor / severe breakdown; defects_unet_v4.onnx: that network decides too).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Detect step: the engine's model file, or the name of a shipped one (default: the shipped network, defects_unet_v5.onnx, whose condition-state head the report turns into hard rust and the fair / poor / severe breakdown; a network without a head borrows v5's states).")] = None,
 ) -> None:
     from inspect_pipe.pipeline import input_kind, run_many, run_pipeline
 

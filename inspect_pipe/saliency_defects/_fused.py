@@ -7,9 +7,9 @@ grid of 0, 0.1, ..., 1) and thresholds are fitted on the onnx network's VALIDATI
 (the 'train' part of the split with ``sha1("val:<set>/<stem>") % 5 == 0``, ``_onnx_train.VAL_RULE``);
 the 'eval' part is never read. Refit with one command (about a minute on 2 cores):
 
-    python -m inspect_pipe.saliency_defects._fused ../shared/data/defects -o inspect_pipe/saliency_defects/models/fused_v1.json
+    python -m inspect_pipe.saliency_defects._fused ../shared/data/defects -o inspect_pipe/saliency_defects/models/fused_v2.json
 
-The parameters live in a small versioned JSON file (``models/fused_v1.json``) that records the
+The parameters live in a small versioned JSON file (``models/fused_v2.json``) that records the
 split they were fitted on, the validation figure of every weight, and the SHA-256 of the two
 model files they were fitted for.
 """
@@ -75,7 +75,7 @@ def fuse_u8(p_sal: np.ndarray, p_onnx: np.ndarray, w: float) -> np.ndarray:
 
 
 def default_fused_path() -> Path:
-    return Path(__file__).parent / "models" / "fused_v1.json"
+    return Path(__file__).parent / "models" / "fused_v2.json"
 
 
 def load_fused_params(path: Path) -> dict:

@@ -1,9 +1,10 @@
 """Learned defect segmentation on onnxruntime: model loading with metadata checks, tiled
 inference with overlap, decisions and regions in the same form as the saliency engine.
 
-No PyTorch here: the networks were trained and exported by ``_onnx_train``; the default decides with
-``models/defects_unet_v1.onnx`` (half-resolution U-Net) and takes the condition states from
-``models/defects_unet_v4.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8). Its output
+No PyTorch here: the networks were trained and exported by ``_onnx_train``; the default,
+``models/defects_unet_v5.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8), decides and gives
+the condition states; a network without a condition-state head (``models/defects_unet_v1.onnx``, the
+half-resolution U-Net, which the fused engine mixes) borrows the default's. Its output
 maps are at 1/2 resolution (metadata ``output.stride`` 2; a model with stride 1 or none gives
 full-resolution maps) and are up-sampled here: the class probabilities and, for models with a
 ``severity`` record, the condition-state logits (fair, poor, severe) of corrosion pixels.
@@ -68,7 +69,7 @@ class OnnxModel:
     #: ``calibration``). The maps this engine returns are calibrated; that class's threshold is 128.
     calibration: dict[str, tuple[int, float]] = field(default_factory=dict)
     #: For a network without a condition-state head: the network whose head gives the condition
-    #: state of each corrosion pixel this one decides (the shipped default: v4's, see
+    #: state of each corrosion pixel this one decides (the shipped default's, v5, see
     #: :func:`with_condition_states`); None: no states.
     states_model: OnnxModel | None = None
     #: Scale of the image the ``states_model`` sees (its states are brought back to full size by
@@ -390,20 +391,19 @@ STATES_SCALE = 0.5
 
 
 def default_onnx_path() -> Path:
-    """The default deciding network: the half-resolution U-Net (v1); v4 gives the condition states
-    (:func:`with_condition_states`). v4 (EfficientNet-Lite1 U-Net, int8) has the higher mean
-    validation F (0.854 against 0.833; corrosion 0.789 against 0.725) and finds as many of the demo
-    flight's known defects (11 of 12), but deciding on the rendered demo walls it outlines less of
-    each corrosion patch, and `compare` of two flights of an unchanged wall then reports a false
-    change and misses a patch that grew, where v1 meets both goals (docs/detect_onnx.md)."""
-    return Path(__file__).parent / "models" / "defects_unet_v1.onnx"
+    """The default network: v5 (EfficientNet-Lite1 U-Net, int8, trained with zoomed-out corrosion
+    crops), which decides and gives the condition states with its own head. Chosen on validation:
+    mean F 0.863 against v4's 0.854 and v1's 0.833 (corrosion 0.790 / 0.789 / 0.725), its
+    corrosion F held at 1/2 of the photos' scale (0.791 against v4's 0.766), and on the rendered
+    demo walls it outlines the corrosion patches v4 cut short (docs/detect_onnx.md)."""
+    return Path(__file__).parent / "models" / "defects_unet_v5.onnx"
 
 
 def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
     """``model`` with the shipped condition-state network attached when it has no head of its
-    own: corrosion a head-less network such as the default v1 decides gets the state of v4's head
-    (validation mean F1 of fair / poor / severe 0.495 with v1's decisions at ``STATES_SCALE`` and
-    the offsets recorded for them, 0.527 with v4's own; docs/detect_onnx.md).
+    own: corrosion a head-less network such as v1 decides gets the state of v5's head
+    (validation mean F1 of fair / poor / severe 0.490 with v1's decisions at ``STATES_SCALE`` and
+    the offsets recorded for them, 0.513 with v5's own; docs/detect_onnx.md).
     Costs one more network pass, on the image at ``scale`` (default ``STATES_SCALE``) of its size,
     on images where corrosion is asked for."""
     if model.severity_output is not None or "corrosion" not in model.classes:
@@ -433,6 +433,6 @@ def attached_bias(states: OnnxModel, decider: OnnxModel, scale: float) -> tuple[
 
 
 def condition_state_onnx_path() -> Path:
-    """The network whose condition-state head a head-less network borrows (:func:`with_condition_states`):
-    v4 (EfficientNet-Lite1 U-Net, int8; v3 until 2026-11-29). ``detect --model`` it to decide with it too."""
-    return Path(__file__).parent / "models" / "defects_unet_v4.onnx"
+    """The network whose condition-state head a head-less network (``detect --model
+    defects_unet_v1.onnx``) borrows (:func:`with_condition_states`): the default, v5 (v4 and v3 before)."""
+    return default_onnx_path()

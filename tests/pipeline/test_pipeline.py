@@ -52,14 +52,14 @@ def test_first_run_runs_every_step_and_writes_the_report(done_run):
     # the report names the engine and model that produced the detections, in every output
     assert run["steps"]["detect"]["options"]["detect"]["engine"] == "onnx"
     trace = doc["traceability"]
-    assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v1.onnx", "1")
+    assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v5.onnx", "5")
     html = (store.report_dir / "report.html").read_text()
-    assert "onnx engine, model defects_unet_v1.onnx v1" in html
-    # the default engine's condition states come from v4's head: named, and the hard rust rated from them
-    assert trace["condition_states_model"] == "defects_unet_v4.onnx v4" and "condition-state head" in trace["hard_rust_rule"]
-    assert "detector onnx (defects_unet_v1.onnx v1; condition states defects_unet_v4.onnx v4)" in html
-    assert "condition states from the head of defects_unet_v4.onnx v4" in html
-    assert "onnx engine, defects_unet_v1.onnx v1" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
+    assert "onnx engine, model defects_unet_v5.onnx v5" in html
+    # the default network gives the condition states with its own head: no second network named, and the hard rust
+    # rated from its states
+    assert trace["condition_states_model"] is None and "condition-state head" in trace["hard_rust_rule"]
+    assert "detector onnx (defects_unet_v5.onnx v5)" in html and "condition states from the head of" not in html
+    assert "onnx engine, defects_unet_v5.onnx v5" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
 
 
 def test_second_run_skips_finished_steps(done_run):

@@ -96,4 +96,4 @@ def test_detect_without_engine_uses_the_network(tmp_path):
     r = _invoke("detect", FIX / "crackforest_004.jpg", "-o", tmp_path)
     assert r.exit_code == 0, r.output
     model = json.loads((tmp_path / "defects.json").read_text())["model"]
-    assert model["engine"] == "onnx" and Path(model["file"]).name == "defects_unet_v1.onnx"
+    assert model["engine"] == "onnx" and Path(model["file"]).name == "defects_unet_v5.onnx"
