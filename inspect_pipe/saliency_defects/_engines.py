@@ -224,7 +224,7 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
         except ValueError as err:
             raise InputError(path, str(err), "use --engine saliency, or train one with "
                              "'inspect-pipe detect train --engine onnx'") from None
-        if model_.severity_output is None:  # a head-less network (the default v1): the corrosion it decides gets v4's states
+        if model_.severity_output is None:  # a head-less network (--model defects_unet_v1.onnx): its corrosion gets v5's states
             try:
                 with _quiet():
                     model_ = with_condition_states(model_, threads=threads)

@@ -115,7 +115,7 @@ def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | N
                              f"the one recorded for {fitted.get('file')!r}; refit: python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json)")
     sal = load_model(sal_path)
     onx = load_onnx_model(onx_path, threads=threads)
-    if onnx_path is None:  # the shipped network: condition states from the shipped v4 head
+    if onnx_path is None:  # the shipped network (v5 gives its own states; a head-less one would borrow them)
         onx = with_condition_states(onx, threads=threads)
     cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}
     return FusedModel(params_path, p, sal, onx,
@@ -241,11 +241,11 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
 
 
 #: CPU time of one 752 x 480 frame (corrosion + crack, whole detection, one thread) of each engine,
-#: as loaded by ``detect`` (onnx: v1 deciding, v4's condition states at ``STATES_SCALE`` 0.5; fused:
-#: with the saliency tables), the median of 12 interleaved rounds in one process, two runs (2026-11-29
-#: 11:35, AMD EPYC, 2 cores; v4 deciding alone 40-41 ms in runs of the same hour; docs/detect_onnx.md).
+#: as loaded by ``detect`` (onnx: v5 deciding with its own condition-state head; fused: v5 with the
+#: saliency tables), the median of 12 interleaved rounds in one process, two runs (2026-11-29 13:22,
+#: AMD EPYC, 2 cores; v1 deciding with v5's states at ``STATES_SCALE`` 0.5: 36-37 ms; docs/detect_onnx.md).
 #: The Intel Xeon host of 2026-11-27 ran the same frame about 1.5x slower (saliency 85 ms).
-FRAME_CPU_MS = {"onnx": 37.0, "saliency": 56.0, "fused": 84.0}
+FRAME_CPU_MS = {"onnx": 41.0, "saliency": 56.0, "fused": 90.0}
 #: The per-frame time target of the default engine (issue 21: 60 ms on one core).
 FRAME_MS_TARGET = 60.0
 #: The default engine is the fastest whose mean validation figure is within this of the best.
