@@ -45,7 +45,7 @@ LICENCE = (
 #: Tiling (the core's grid and its TILE_PX): overlap margin (px, a multiple of MULTIPLE_OF); it
 #: covers the encoder's receptive field, so tiles equal whole-image inference. EfficientNet-Lite0
 #: (v3) needed 256 px (96 px, enough for the earlier network, left differences of up to 27 grey
-#: levels; 192 px, 9); Lite1 (v4), four blocks deeper at 1/16, 320 px (256 px left up to 61 grey
+#: levels; 192 px, 9); Lite1 (v4, v5), four blocks deeper at 1/16, 320 px (256 px left up to 61 grey
 #: levels on the surface map of an 1800 x 1400 image in 768 px tiles; 320 px, none).
 MARGIN_PX = 320
 #: Images up to this many pixels run in one pass.
@@ -384,9 +384,10 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
     return out  # type: ignore[return-value]
 
 
-#: Input scale of the attached condition-state network: the best validation states figure among the
-#: scales whose default frame stays within the 60 ms target on the slower of the two hosts measured
-#: (docs/detect_onnx.md, "Condition states at a lower resolution"; 0.375 with v3, 0.5 since v4).
+#: Input scale of the condition-state network attached to a network without a head (v1): the best
+#: validation states figure among the scales whose frame (v1 deciding) stays within the 60 ms target on
+#: the slower of the two hosts measured (docs/detect_onnx.md, "Condition states at a lower resolution";
+#: 0.375 with v3, 0.5 chosen with v4 and kept for v5, whose offsets for it were refitted).
 STATES_SCALE = 0.5
 
 

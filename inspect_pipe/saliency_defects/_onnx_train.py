@@ -1129,8 +1129,9 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "5", int8:
     """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
     the validation images and, with ``int8``, the quantised network at ``out`` (the float one
     beside the checkpoint, ``CKPT.float.onnx``: not in the package); for a network with a
-    condition-state head, also the offsets for giving the states of the shipped default's
-    decisions at ``STATES_SCALE`` (:func:`set_attached_bias`)."""
+    condition-state head, also the offsets for giving the states of each shipped network without
+    one (v1) at ``STATES_SCALE`` (:func:`set_attached_bias`), as ``with_condition_states`` uses
+    them when ``out`` is the default."""
     out = Path(out)
     flt = Path(ckpt).with_suffix(".float.onnx") if int8 else out
     export_onnx(ckpt, flt, version=version, log=log)
@@ -1141,5 +1142,7 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "5", int8:
     set_map_calibration(out, val, log=log)
     from ._onnx_detect import STATES_SCALE, default_onnx_path
 
-    if "severity" in _read_meta(out) and default_onnx_path().is_file() and default_onnx_path().resolve() != out.resolve():
-        set_attached_bias(out, default_onnx_path(), STATES_SCALE, val=val, log=log)
+    if "severity" in _read_meta(out):
+        shipped = sorted(default_onnx_path().parent.glob("defects_unet_v*.onnx"))
+        for headless in (d for d in shipped if d.resolve() != out.resolve() and "severity" not in _read_meta(d)):
+            set_attached_bias(out, headless, STATES_SCALE, val=val, log=log)
