@@ -169,12 +169,12 @@ def run(data: Path) -> str:
     data = Path(data)
     root = data / "defects"
     sal = load_model(default_model_path())
-    # the default as `detect` loads it, and beside it the other shipped network as `detect --model` loads it: with a
-    # default that has its own condition-state head (v5), the head-less v1 (the default until v5) borrowing its
-    # states; with a head-less default, the states network deciding alone
+    # the default as `detect` loads it (v5 deciding, the states network's states), and beside it v1 (the default until
+    # v5) as `detect --model` loads it, with the same states network. The states network is not scored deciding: it
+    # was not chosen to decide (docs/detect_onnx.md), and its eval figures are not read for a choice not made.
     onx = with_condition_states(load_onnx_model(default_onnx_path(), threads=1), threads=1)
     own = onx.states_model is None
-    alt_path = default_onnx_path().parent / "defects_unet_v1.onnx" if own else condition_state_onnx_path()
+    alt_path = default_onnx_path().parent / "defects_unet_v1.onnx"
     alt = with_condition_states(load_onnx_model(alt_path, threads=1), threads=1)
     alt_name = f"onnx `--model {alt_path.name}`"
     dflt_name = f"**onnx** (`{default_onnx_path().name}`" + (", its own states)" if own else f", states `{condition_state_onnx_path().name}`)")

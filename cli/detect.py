@@ -287,19 +287,23 @@ def train(
     version: Annotated[Optional[str], typer.Option("--version", help="Version recorded in the model (default: the shipped one's, saliency tables 1, the onnx network 5).")] = None,
     engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
+    max_steps: Annotated[Optional[int], typer.Option("--max-steps", help="onnx: the step limit of the schedule (default: the decider's recipe, 2240; the condition-state network v6: 4480).", min=1)] = None,
 ) -> None:
     """Learn the likelihood tables from labelled images (train part of the documented split only).
 
     Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
-    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --version 5
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --version 5 ;
+    inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v6.onnx --version 6 --max-steps 4480
     """
     import inspect_pipe.saliency_defects as sd
 
     if out.is_dir():  # checked before an hour of training, not after it
         raise InputError(str(out), "is a directory", "give the model file to write, e.g. -o models/defects.onnx")
     if engine is Engine.onnx:
-        return _train_onnx(data, out, version or "5", time_budget_min)
+        return _train_onnx(data, out, version or "5", time_budget_min, max_steps)
     version = version or "1"
+    if max_steps is not None:
+        raise InputError("--max-steps", "only applies to --engine onnx", "drop it, or add --engine onnx")
     if engine is Engine.fused:
         raise InputError("--engine fused", "has no training of its own",
                          "fit its weights with 'python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json'")
@@ -336,7 +340,7 @@ def train(
     typer.echo(f"wrote {out}")
 
 
-def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> None:
+def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float, max_steps: int | None = None) -> None:
     import importlib.util
 
     from inspect_pipe.saliency_defects._onnx_train import ENCODERS, OnnxTrainConfig
@@ -359,6 +363,7 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float) -> 
         raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
     ckpt = out.with_suffix(".pt")
     # the cosine schedule ends at max_steps or at the budget, whichever first
-    cfg = OnnxTrainConfig(time_budget_s=60 * time_budget_min, total_time_budget_s=60 * (time_budget_min + 3))
+    cfg = OnnxTrainConfig(time_budget_s=60 * time_budget_min, total_time_budget_s=60 * (time_budget_min + 3),
+                          **({"max_steps": max_steps} if max_steps is not None else {}))
     train_net(data, ckpt, cfg, log=typer.echo)
     export_model(ckpt, out, data, version=version, log=typer.echo)

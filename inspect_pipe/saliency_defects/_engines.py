@@ -224,13 +224,12 @@ def load_engine(engine: str, model: str | Path | None = None, *, threads: int = 
         except ValueError as err:
             raise InputError(path, str(err), "use --engine saliency, or train one with "
                              "'inspect-pipe detect train --engine onnx'") from None
-        if model_.severity_output is None:  # a head-less network (--model defects_unet_v1.onnx): its corrosion gets v5's states
-            try:
-                with _quiet():
-                    model_ = with_condition_states(model_, threads=threads)
-            except ValueError as err:
-                raise InputError(condition_state_onnx_path(), str(err), "reinstall inspect-pipe (a shipped model "
-                                 "file is damaged), or use --engine saliency") from None
+        try:  # the corrosion it decides gets the states network's (v6's) states; v6 itself keeps its own head
+            with _quiet():
+                model_ = with_condition_states(model_, threads=threads)
+        except ValueError as err:
+            raise InputError(condition_state_onnx_path(), str(err), "reinstall inspect-pipe (a shipped model "
+                             "file is damaged), or use --engine saliency") from None
         return _Onnx(engine, path, model_, tile_multiple=MULTIPLE_OF, batch=4)
     from ._fused import load_fused_model
 

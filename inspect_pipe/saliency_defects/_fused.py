@@ -115,7 +115,7 @@ def load_fused_model(params_path: Path | None = None, *, saliency_path: Path | N
                              f"the one recorded for {fitted.get('file')!r}; refit: python -m inspect_pipe.saliency_defects._fused DATA -o PARAMS.json)")
     sal = load_model(sal_path)
     onx = load_onnx_model(onx_path, threads=threads)
-    if onnx_path is None:  # the shipped network (v5 gives its own states; a head-less one would borrow them)
+    if onnx_path is None:  # the shipped network: the corrosion it decides gets v6's states, as with detect
         onx = with_condition_states(onx, threads=threads)
     cls = {k: c for k, c in p["classes"].items() if k in sal.classes and k in onx.classes}
     return FusedModel(params_path, p, sal, onx,
@@ -241,11 +241,12 @@ def fit_fused(data: Path, *, saliency_path: Path | None = None, onnx_path: Path 
 
 
 #: CPU time of one 752 x 480 frame (corrosion + crack, whole detection, one thread) of each engine,
-#: as loaded by ``detect`` (onnx: v5 deciding with its own condition-state head; fused: v5 with the
-#: saliency tables), the median of 12 interleaved rounds in one process, two runs (2026-11-29 13:22,
-#: AMD EPYC, 2 cores; v1 deciding with v5's states at ``STATES_SCALE`` 0.5: 36-37 ms; docs/detect_onnx.md).
-#: The Intel Xeon host of 2026-11-27 ran the same frame about 1.5x slower (saliency 85 ms).
-FRAME_CPU_MS = {"onnx": 41.0, "saliency": 56.0, "fused": 90.0}
+#: as loaded by ``detect`` (onnx: v5 deciding, v6's condition states at ``STATES_SCALE`` 0.375;
+#: fused: the same with the saliency tables), the median of 12 interleaved rounds in one process, two
+#: runs (2026-11-29 15:40, AMD EPYC, 2 cores; v1 deciding with v6's states 35 ms, v6 alone 40 ms,
+#: v5 alone with its own head 41 ms; docs/detect_onnx.md). The Intel Xeon host of 2026-11-27 ran the
+#: same frame about 1.5x slower (saliency 85 ms).
+FRAME_CPU_MS = {"onnx": 45.0, "saliency": 56.0, "fused": 95.0}
 #: The per-frame time target of the default engine (issue 21: 60 ms on one core).
 FRAME_MS_TARGET = 60.0
 #: The default engine is the fastest whose mean validation figure is within this of the best.

@@ -2,9 +2,11 @@
 inference with overlap, decisions and regions in the same form as the saliency engine.
 
 No PyTorch here: the networks were trained and exported by ``_onnx_train``; the default,
-``models/defects_unet_v5.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8), decides and gives
-the condition states; a network without a condition-state head (``models/defects_unet_v1.onnx``, the
-half-resolution U-Net, which the fused engine mixes) borrows the default's. Its output
+``models/defects_unet_v5.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8), decides; the
+condition states of the corrosion it decides come from the head of ``models/defects_unet_v6.onnx``
+(the same recipe trained twice as long), run on the image at ``STATES_SCALE``. Every other network
+given with ``--model`` (v1, the half-resolution U-Net without a head; v4) gets v6's states the
+same way; v6 given itself decides and keeps its own head. Its output
 maps are at 1/2 resolution (metadata ``output.stride`` 2; a model with stride 1 or none gives
 full-resolution maps) and are up-sampled here: the class probabilities and, for models with a
 ``severity`` record, the condition-state logits (fair, poor, severe) of corrosion pixels.
@@ -68,9 +70,9 @@ class OnnxModel:
     #: ``_core.calibrate`` / ``calibration_lut``, fitted on the validation images (metadata
     #: ``calibration``). The maps this engine returns are calibrated; that class's threshold is 128.
     calibration: dict[str, tuple[int, float]] = field(default_factory=dict)
-    #: For a network without a condition-state head: the network whose head gives the condition
-    #: state of each corrosion pixel this one decides (the shipped default's, v5, see
-    #: :func:`with_condition_states`); None: no states.
+    #: The network whose head gives the condition state of each corrosion pixel this one decides
+    #: (the shipped states network, v6, see :func:`with_condition_states`; this one's own head is
+    #: then not read); None: this network's own head, if any.
     states_model: OnnxModel | None = None
     #: Scale of the image the ``states_model`` sees (its states are brought back to full size by
     #: nearest neighbour): the condition-state labels are coarse polygons, and a smaller input
@@ -384,37 +386,43 @@ def detect_onnx_batch(images: list[np.ndarray], model: OnnxModel, *, kinds=("cor
     return out  # type: ignore[return-value]
 
 
-#: Input scale of the condition-state network attached to a network without a head (v1): the best
-#: validation states figure among the scales whose frame (v1 deciding) stays within the 60 ms target on
-#: the slower of the two hosts measured (docs/detect_onnx.md, "Condition states at a lower resolution";
-#: 0.375 with v3, 0.5 chosen with v4 and kept for v5, whose offsets for it were refitted).
-STATES_SCALE = 0.5
+#: Input scale of the condition-state network (:func:`with_condition_states`): the smallest of the
+#: validation scales 0.25 / 0.375 / 0.5 within 0.005 of the best states figure with the default's
+#: decisions (v6's states for v5's decisions: 0.575 / 0.621 / 0.625; the frame 43 / 46 / 48 ms;
+#: docs/detect_onnx.md, "Condition states from v6"). 0.375 with v3, 0.5 with v4 and v5.
+STATES_SCALE = 0.375
 
 
 def default_onnx_path() -> Path:
     """The default network: v5 (EfficientNet-Lite1 U-Net, int8, trained with zoomed-out corrosion
-    crops), which decides and gives the condition states with its own head. Chosen on validation:
-    mean F 0.863 against v4's 0.854 and v1's 0.833 (corrosion 0.790 / 0.789 / 0.725), its
-    corrosion F held at 1/2 of the photos' scale (0.791 against v4's 0.766), and on the rendered
-    demo walls it outlines the corrosion patches v4 cut short (docs/detect_onnx.md)."""
+    crops), which decides where each class is. Chosen on validation: mean F 0.863 against v4's
+    0.854 and v1's 0.833 (corrosion 0.790 / 0.789 / 0.725), its corrosion F held at 1/2 of the
+    photos' scale (0.791 against v4's 0.766), and on the rendered demo walls it outlines the
+    corrosion patches v4 cut short (docs/detect_onnx.md). The condition states of the corrosion it
+    decides come from :func:`condition_state_onnx_path`."""
     return Path(__file__).parent / "models" / "defects_unet_v5.onnx"
 
 
 def with_condition_states(model: OnnxModel, *, threads: int = 1, scale: float | None = None) -> OnnxModel:
-    """``model`` with the shipped condition-state network attached when it has no head of its
-    own: corrosion a head-less network such as v1 decides gets the state of v5's head
-    (validation mean F1 of fair / poor / severe 0.490 with v1's decisions at ``STATES_SCALE`` and
-    the offsets recorded for them, 0.513 with v5's own; docs/detect_onnx.md).
-    Costs one more network pass, on the image at ``scale`` (default ``STATES_SCALE``) of its size,
-    on images where corrosion is asked for."""
-    if model.severity_output is not None or "corrosion" not in model.classes:
+    """``model`` with the shipped condition-state network (v6, :func:`condition_state_onnx_path`)
+    attached: each corrosion pixel ``model`` decides gets the state of v6's head, run on the image
+    at ``scale`` (default ``STATES_SCALE``) of its size, with the logit offsets v6's metadata
+    records for ``model``'s file (chosen on validation: mean F1 of fair / poor / severe 0.621 for
+    the default v5's decisions, against 0.513 from v5's own head; 0.562 for v1's; docs/detect_onnx.md).
+    A network's own head, if it has one, is then not read. v6 itself, or a network without a
+    corrosion class, is returned as it is. Costs one more network pass, on images where corrosion
+    is asked for and decided."""
+    if "corrosion" not in model.classes or model.path.resolve() == condition_state_onnx_path().resolve():
         return model
     scale = STATES_SCALE if scale is None else scale
     states = load_onnx_model(condition_state_onnx_path(), threads=threads)
+    if states.severity_output is None:
+        raise ValueError("the condition-state network has no condition-state head")
     bias = attached_bias(states, model, scale)
     if bias is not None:
         states = dataclasses.replace(states, severity_bias=bias)
-    return dataclasses.replace(model, states_model=dataclasses.replace(states, states_model=None), states_scale=scale)
+    return dataclasses.replace(model, severity_output=None, states_model=dataclasses.replace(states, states_model=None),
+                               states_scale=scale)
 
 
 def attached_bias(states: OnnxModel, decider: OnnxModel, scale: float) -> tuple[float, float, float] | None:
@@ -434,6 +442,9 @@ def attached_bias(states: OnnxModel, decider: OnnxModel, scale: float) -> tuple[
 
 
 def condition_state_onnx_path() -> Path:
-    """The network whose condition-state head a head-less network (``detect --model
-    defects_unet_v1.onnx``) borrows (:func:`with_condition_states`): the default, v5 (v4 and v3 before)."""
-    return default_onnx_path()
+    """The network whose condition-state head gives the states of every other network's corrosion
+    (:func:`with_condition_states`): v6, v5's recipe trained twice as long (``--max-steps 4480``),
+    whose head is the best on validation (0.583 with its own decisions, v5's 0.513). It does not
+    decide by default: on the rendered walls its decisions were less steady than v5's
+    (docs/detect_onnx.md). ``--model defects_unet_v6.onnx`` decides with it, its own head at full size."""
+    return Path(__file__).parent / "models" / "defects_unet_v6.onnx"

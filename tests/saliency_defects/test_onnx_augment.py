@@ -55,3 +55,41 @@ def test_the_training_defaults_are_the_recipe_recorded_in_the_shipped_default():
     defaults = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(ot.OnnxTrainConfig()).items()}
     assert recorded == defaults
     assert defaults["zoom_out_p"] == 0.5 and defaults["zoom_out_max"] == 3.0 and defaults["arch"] == "effnet_lite1_unet"
+
+
+def test_the_states_network_is_the_default_recipe_with_the_step_limit_its_command_names():
+    import dataclasses
+
+    from inspect_pipe.saliency_defects import _onnx_detect as od
+
+    # v6's recorded settings are the training defaults but for the step limit, and its recorded command gives that limit
+    meta = od.load_onnx_model(od.condition_state_onnx_path()).meta["training"]
+    defaults = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(ot.OnnxTrainConfig()).items()}
+    assert {k: v for k, v in meta["config"].items() if k != "max_steps"} == {k: v for k, v in defaults.items() if k != "max_steps"}
+    assert f"--max-steps {meta['config']['max_steps']}" in meta["command"] and meta["config"]["max_steps"] != defaults["max_steps"]
+
+
+def test_refit_attached_keeps_the_states_networks_offsets_true_to_each_shipped_file(tmp_path, monkeypatch):
+    from inspect_pipe.saliency_defects import _onnx_detect as od
+
+    # GIVEN a package folder with the states network (v6) and two deciders, and a network elsewhere
+    pkg = tmp_path / "models"
+    pkg.mkdir()
+    for v in (1, 5, 6):
+        (pkg / f"defects_unet_v{v}.onnx").write_bytes(b"net")
+    monkeypatch.setattr(od, "condition_state_onnx_path", lambda: pkg / "defects_unet_v6.onnx")
+    monkeypatch.setattr(ot, "_read_meta", lambda p: {"severity": {}})
+    calls = []
+    monkeypatch.setattr(ot, "set_attached_bias", lambda s, d, scale, **kw: calls.append((s.name, d.name, scale)) or {})
+    # WHEN the states network is exported THEN its offsets are fitted for every other shipped network at STATES_SCALE
+    ot.refit_attached(pkg / "defects_unet_v6.onnx", val={"corrosion": []})
+    assert calls == [("defects_unet_v6.onnx", "defects_unet_v1.onnx", od.STATES_SCALE),
+                     ("defects_unet_v6.onnx", "defects_unet_v5.onnx", od.STATES_SCALE)]
+    # WHEN a shipped decider is exported again THEN the states network's offsets are fitted again for that file only
+    calls.clear()
+    ot.refit_attached(pkg / "defects_unet_v5.onnx", val={"corrosion": []})
+    assert calls == [("defects_unet_v6.onnx", "defects_unet_v5.onnx", od.STATES_SCALE)]
+    # AND a network written elsewhere (a trial) changes nothing in the package
+    calls.clear()
+    (tmp_path / "trial.onnx").write_bytes(b"net")
+    assert ot.refit_attached(tmp_path / "trial.onnx", val={"corrosion": []}) == [] and calls == []

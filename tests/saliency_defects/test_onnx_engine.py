@@ -32,7 +32,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def sev_model():
-    """The network whose condition-state head a head-less network borrows (the default, v5)."""
+    """The condition-state network (v6), whose head gives the states of every other network's corrosion."""
     return od.load_onnx_model(od.condition_state_onnx_path())
 
 
@@ -46,14 +46,18 @@ def _fixture(stem_img, stem_mask):
     return img, gt
 
 
-def test_default_model_is_v5_and_gives_its_own_condition_states(model, sev_model):
+def test_default_model_is_v5_and_its_condition_states_come_from_v6(model, sev_model):
     assert od.default_onnx_path().name == "defects_unet_v5.onnx" and model.severity_output == "severity"
     assert model.meta["format"] == od.ONNX_FORMAT and od.default_onnx_path().stat().st_size <= 20_000_000
     # EfficientNet-Lite1, trained with half of its corrosion crops zoomed out (the recipe is recorded)
     assert model.meta["encoder"]["name"] == "efficientnet-lite1" and model.meta["version"] == "5"
     assert model.meta["training"]["config"]["zoom_out_p"] == 0.5 and model.meta["training"]["config"]["zoom_out_max"] == 3.0
-    # a network without a head of its own (v1, the fused engine's) borrows the default's
-    assert od.condition_state_onnx_path() == od.default_onnx_path() and sev_model.severity_output == "severity"
+    # the states network is another file: v6, the same recipe with twice the steps, and its command says so
+    assert od.condition_state_onnx_path().name == "defects_unet_v6.onnx" and sev_model.severity_output == "severity"
+    c5, c6 = model.meta["training"]["config"], sev_model.meta["training"]["config"]
+    assert c6["max_steps"] == 2 * c5["max_steps"] and {k: v for k, v in c6.items() if k != "max_steps"} == \
+        {k: v for k, v in c5.items() if k != "max_steps"}
+    assert sev_model.meta["training"]["command"].endswith("--version 6 --max-steps 4480")
     assert od.load_onnx_model(V1).severity_output is None
 
 
@@ -121,12 +125,13 @@ def test_cli_corrosion_writes_the_severity_map_and_region_states(tmp_path):
 # measured when the model was committed; a retrained model must land within the tolerance.
 GOLDEN = {"v1": {"crack": 0.841, "corrosion": 0.739},  # half-resolution U-Net with its corrosion fine-tuning (the default until v5)
           "v4": {"crack": 0.755, "corrosion": 0.812},  # EfficientNet-Lite1 U-Net, int8, 2026-11-29 (v3, Lite0: 0.775, 0.772)
-          "v5": {"crack": 0.822, "corrosion": 0.796}}  # the default: v4's recipe with zoomed-out corrosion crops, 2026-11-29
+          "v5": {"crack": 0.822, "corrosion": 0.796},  # the default: v4's recipe with zoomed-out corrosion crops, 2026-11-29
+          "v6": {"crack": 0.801, "corrosion": 0.810}}  # the states network: v5's recipe, twice the steps, 2026-11-29
 # (before the fine-tuning phase v1 gave 0.836, 0.794 on these three images; the first network 0.737, 0.630)
 GOLDEN_TOL = 0.03
 
 
-@pytest.mark.parametrize("version", ["v1", "v4", "v5"])
+@pytest.mark.parametrize("version", ["v1", "v4", "v5", "v6"])
 def test_golden_f_on_real_fixtures(model, version):
     GOLDEN_V = GOLDEN[version]
     model = od.load_onnx_model(MODELS / f"defects_unet_{version}.onnx")
@@ -344,39 +349,51 @@ def test_crack_map_is_calibrated_away_from_the_end_of_the_range():
     assert brier(cal_map) < brier(raw_map)
 
 
-def test_a_network_without_a_head_gets_the_condition_states_of_the_default(tmp_path):
+@pytest.mark.parametrize("decider", ["default", "v1"])
+def test_every_other_network_gets_the_condition_states_of_v6(decider):
     from inspect_pipe.saliency_defects import load_engine
 
-    # GIVEN v1 given to the engine (it has no condition-state head) and the default, v5 (its own head)
-    given = load_engine("onnx", V1)
-    default = load_engine("onnx")
+    # GIVEN the default engine (v5, which has a head of its own) or v1 given to it (no head)
+    path = od.default_onnx_path() if decider == "default" else V1
+    given = load_engine("onnx", None if decider == "default" else V1)
     img, _ = _fixture("vt_train_112.jpeg", "vt_train_112.mask.png")
-    d, g = given.detect(img, kinds=("corrosion",)), default.detect(img, kinds=("corrosion",))
-    # THEN v1's detection names a state for every pixel it decides: v5's head, run on the image at STATES_SCALE with
-    # the logit offsets v5's metadata records for v1's decisions at that scale (chosen on validation)
-    assert d.severity is not None and np.array_equal(d.severity > 0, d.mask)
+    d = given.detect(img, kinds=("corrosion",))
+    # THEN its detection names a state for every pixel it decides: v6's head, run on the image at STATES_SCALE with
+    # the logit offsets v6's metadata records for this decider's file at that scale (chosen on validation)
+    assert d.severity is not None and d.severity.any() and np.array_equal(d.severity > 0, d.mask)
     h, w = img.shape[:2]
     sc = od.STATES_SCALE
     small = cv2.resize(img, (round(w * sc), round(h * sc)), interpolation=cv2.INTER_AREA)
-    v5 = od.load_onnx_model(od.condition_state_onnx_path())
-    bias = od.attached_bias(v5, od.load_onnx_model(V1), sc)
-    rec = next(a for a in v5.meta["severity"]["attached"] if a["decider"] == V1.name and a["scale"] == sc)
-    assert bias == tuple(rec["logit_bias"]) and bias != v5.severity_bias
-    _, states = od.onnx_maps(small, dataclasses.replace(v5, severity_bias=bias), kinds=("corrosion",))
+    v6 = od.load_onnx_model(od.condition_state_onnx_path())
+    bias = od.attached_bias(v6, od.load_onnx_model(path), sc)
+    rec = next(a for a in v6.meta["severity"]["attached"] if a["decider"] == path.name and a["scale"] == sc)
+    assert bias == tuple(rec["logit_bias"]) and bias != v6.severity_bias
+    _, states = od.onnx_maps(small, dataclasses.replace(v6, severity_bias=bias), kinds=("corrosion",))
     states = cv2.resize(states, (w, h), interpolation=cv2.INTER_NEAREST)
     assert np.array_equal(d.severity, np.where(d.mask, states, 0))
-    assert given.model_doc(("corrosion",))["condition_states"]["version"] == "5"
-    # AND the default decides its own corrosion and states (its own head, full scale)
-    _, own = od.onnx_maps(img, v5, kinds=("corrosion",))
-    assert np.array_equal(g.severity, np.where(g.mask, own, 0)) and not np.array_equal(g.mask, d.mask)
-    assert "condition_states" not in default.model_doc(("corrosion",))
-    # AND at full scale the attached network gives exactly its own head's states
-    full = od.with_condition_states(od.load_onnx_model(V1), scale=1.0)
-    assert np.array_equal(od.onnx_maps(img, full, kinds=("corrosion",))[1], own)
+    assert given.model_doc(("corrosion",))["condition_states"] == {"file": str(od.condition_state_onnx_path()), "version": "6"}
+    # AND the corrosion decided is the decider's own map at its own point (the states network decides nothing)
+    own = od.load_onnx_model(path)
+    assert np.array_equal(d.mask, od.detect_onnx(img, dataclasses.replace(own, severity_output=None), kinds=("corrosion",)).mask)
+    # AND at full scale the attached network gives exactly v6's own head's states
+    full = od.with_condition_states(od.load_onnx_model(path), scale=1.0)
+    _, v6_own = od.onnx_maps(img, dataclasses.replace(v6, severity_bias=full.states_model.severity_bias), kinds=("corrosion",))
+    assert np.array_equal(od.onnx_maps(img, full, kinds=("corrosion",))[1], v6_own)
     # AND a batch of frames gets the same states as one by one
     b = given.detect_batch([img, img[:, ::-1].copy()], kinds=("corrosion",))
     assert np.array_equal(b[0].severity, d.severity)
     assert np.array_equal(b[1].severity, given.detect(img[:, ::-1].copy(), kinds=("corrosion",)).severity)
+
+
+def test_v6_given_as_the_model_decides_and_gives_its_own_states_at_full_size():
+    from inspect_pipe.saliency_defects import load_engine
+
+    v6 = load_engine("onnx", od.condition_state_onnx_path())
+    img, _ = _fixture("vt_train_112.jpeg", "vt_train_112.mask.png")
+    d = v6.detect(img, kinds=("corrosion",))
+    _, own = od.onnx_maps(img, od.load_onnx_model(od.condition_state_onnx_path()), kinds=("corrosion",))
+    assert v6.model.states_model is None and "condition_states" not in v6.model_doc(("corrosion",))
+    assert d.severity.any() and np.array_equal(d.severity, np.where(d.mask, own, 0))
 
 
 def test_states_network_is_skipped_where_no_corrosion_is_decided(monkeypatch):
@@ -407,25 +424,30 @@ def test_a_damaged_states_network_is_named_in_the_one_line_error(tmp_path, monke
     from inspect_pipe.saliency_defects import load_engine
 
     # GIVEN the shipped condition-state network damaged (cut to a third)
-    bad = tmp_path / "defects_unet_v5.onnx"
+    bad = tmp_path / "defects_unet_v6.onnx"
     bad.write_bytes(od.condition_state_onnx_path().read_bytes()[:300_000])
     monkeypatch.setattr(od, "condition_state_onnx_path", lambda: bad)
-    # WHEN the engine loads a network that borrows its states THEN the error names that file, not the deciding network
-    with pytest.raises(InputError) as e:
-        load_engine("onnx", V1)
-    assert str(bad) in str(e.value).split(":")[0] and "reinstall" in str(e.value)
+    # WHEN the engine loads the default or another network THEN the error names that file, not the deciding network
+    for given in (None, V1):
+        with pytest.raises(InputError) as e:
+            load_engine("onnx", given)
+        assert str(bad) in str(e.value).split(":")[0] and "reinstall" in str(e.value)
 
 
 def test_attached_bias_applies_only_to_the_decider_and_scale_it_was_chosen_for(tmp_path):
-    v3 = od.load_onnx_model(od.condition_state_onnx_path())  # (v5: the states network)
+    v6 = od.load_onnx_model(od.condition_state_onnx_path())
     v1 = od.load_onnx_model(V1)
-    rec = next(a for a in v3.meta["severity"]["attached"] if a["decider"] == v1.path.name)
+    rec = next(a for a in v6.meta["severity"]["attached"] if a["decider"] == v1.path.name)
     # the record says where it was chosen and how well it did there
     assert rec["validation"]["mean_F1"] > rec["validation"]["unbiased_mean_F1"]
-    assert od.attached_bias(v3, v1, rec["scale"]) == tuple(rec["logit_bias"])
-    # another scale, or a decider file of the same name with other bytes: v3's own offsets apply
-    assert od.attached_bias(v3, v1, 1.0) is None
+    assert od.attached_bias(v6, v1, rec["scale"]) == tuple(rec["logit_bias"])
+    # another scale, or a decider file of the same name with other bytes: v6's own offsets apply
+    assert od.attached_bias(v6, v1, 1.0) is None
     other = tmp_path / v1.path.name
     other.write_bytes(v1.path.read_bytes() + b"\0")
-    assert od.attached_bias(v3, dataclasses.replace(v1, path=other), rec["scale"]) is None
-    assert od.with_condition_states(v1, scale=1.0).states_model.severity_bias == v3.severity_bias
+    assert od.attached_bias(v6, dataclasses.replace(v1, path=other), rec["scale"]) is None
+    assert od.with_condition_states(v1, scale=1.0).states_model.severity_bias == v6.severity_bias
+    # every shipped network but v6 has its record at STATES_SCALE, fitted for its current bytes
+    for d in sorted(MODELS.glob("defects_unet_v*.onnx")):
+        if d.name != od.condition_state_onnx_path().name:
+            assert od.attached_bias(v6, od.load_onnx_model(d), od.STATES_SCALE) is not None, d.name
