@@ -40,11 +40,13 @@ def stitcher(frames: Path, out: Path) -> dict:
     except cv2.error as err:
         return {"time_s": time.perf_counter() - t, "placed": 0, "n": len(imgs), "status": f"exception: {str(err).splitlines()[-1][:80]}"}
     stitch_s = time.perf_counter() - t_stitch
-    placed = len(st.component()) if status == cv2.Stitcher_OK else 0
+    component = [int(i) for i in st.component()] if status == cv2.Stitcher_OK else []
+    placed = len(component)
     if status == cv2.Stitcher_OK:
         out.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out / "stitcher.png"), pano, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    return {"time_s": time.perf_counter() - t, "stitch_s": stitch_s, "placed": placed, "n": len(imgs), "status": int(status)}
+    return {"time_s": time.perf_counter() - t, "stitch_s": stitch_s, "placed": placed, "n": len(imgs), "status": int(status),
+            "component": component}
 
 
 def main() -> None:

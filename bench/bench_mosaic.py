@@ -311,15 +311,33 @@ def _npu(data: Path) -> str:
 
 
 def _rov(data: Path) -> str:
+    """Haltbrekken, all 30 frames; then the same work for both: only the frames the Stitcher placed
+    (it stops after its first few), each mosaicer on that subset, in the same run."""
     root = data / "mosaic" / "haltbrekken_rov_run1" / "left"
     out = WORK / "rov"
     shutil.rmtree(out, ignore_errors=True)
     ours = _run("ours", root, out)
     peer = _run("stitcher", root, WORK / "rov_stitcher", timeout=STITCHER_TIMEOUT_S)
     n = ours.get("n", 30)
-    return (f"| haltbrekken_rov_run1 | {ours['placed']}/{n} in groups {ours.get('groups')} | {peer['placed']}/{n} {peer.get('status', '')} | "
+    rows = [f"| haltbrekken_rov_run1 | {ours['placed']}/{n} in groups {ours.get('groups')} | {peer['placed']}/{n} {peer.get('status', '')} | "
             f"{ours['time_s']:.1f} s | {peer['time_s']:.1f} s | **{peer['time_s'] / ours['time_s']:.1f}x** | "
-            f"{ours['peak_gb']:.2f} / {peer['peak_gb']:.2f} GB | keypoint reprojection RMS {', '.join(f'{r:.2f}' for r in ours.get('rms_px', []))} px |")
+            f"{ours['peak_gb']:.2f} / {peer['peak_gb']:.2f} GB | keypoint reprojection RMS {', '.join(f'{r:.2f}' for r in ours.get('rms_px', []))} px |"]
+    comp = peer.get("component") or []
+    if comp:
+        from inspect_pipe.mosaic import FolderSource
+
+        names = [FolderSource(root).paths[i] for i in comp]
+        sub = WORK / "rov_subset"
+        shutil.rmtree(sub, ignore_errors=True)
+        sub.mkdir(parents=True)
+        for f in names:
+            shutil.copy(f, sub / f.name)
+        o, s = _run("ours", sub, WORK / "rov_subset_ours"), _run("stitcher", sub, WORK / "rov_subset_stitcher", timeout=STITCHER_TIMEOUT_S)
+        rows.append(f"| haltbrekken_rov_run1, only the {len(comp)} frames the Stitcher placed ({names[0].stem} to {names[-1].stem}) | "
+                    f"{o['placed']}/{len(comp)} | {s['placed']}/{len(comp)} | {o['time_s']:.1f} s | {s['time_s']:.1f} s | "
+                    f"**{s['time_s'] / o['time_s']:.1f}x** | {o['peak_gb']:.2f} / {s['peak_gb']:.2f} GB | "
+                    f"keypoint reprojection RMS {', '.join(f'{r:.2f}' for r in o.get('rms_px', []))} px |")
+    return "\n".join(rows)
 
 
 def _scaling(data: Path) -> list[str]:
