@@ -5,7 +5,7 @@ No PyTorch here: the networks were trained and exported by ``_onnx_train``; the 
 ``models/defects_unet_v5.onnx`` (EfficientNet-Lite1 encoder, U-Net decoder, int8), decides; the
 condition states of the corrosion it decides come from the head of ``models/defects_unet_v6.onnx``
 (the same recipe trained twice as long), run on the image at ``STATES_SCALE``. Every other network
-given with ``--model`` (v1, the half-resolution U-Net without a head; v4) gets v6's states the
+given with ``--model`` (v1, the half-resolution U-Net without a head) gets v6's states the
 same way; v6 given itself decides and keeps its own head. Its output
 maps are at 1/2 resolution (metadata ``output.stride`` 2; a model with stride 1 or none gives
 full-resolution maps) and are up-sampled here: the class probabilities and, for models with a
@@ -47,7 +47,7 @@ LICENCE = (
 #: Tiling (the core's grid and its TILE_PX): overlap margin (px, a multiple of MULTIPLE_OF); it
 #: covers the encoder's receptive field, so tiles equal whole-image inference. EfficientNet-Lite0
 #: (v3) needed 256 px (96 px, enough for the earlier network, left differences of up to 27 grey
-#: levels; 192 px, 9); Lite1 (v4, v5), four blocks deeper at 1/16, 320 px (256 px left up to 61 grey
+#: levels; 192 px, 9); Lite1 (v4, v5, v6), four blocks deeper at 1/16, 320 px (256 px left up to 61 grey
 #: levels on the surface map of an 1800 x 1400 image in 768 px tiles; 320 px, none).
 MARGIN_PX = 320
 #: Images up to this many pixels run in one pass.
