@@ -29,7 +29,6 @@ class FlightEvents:
     land_requested: bool = False  # land button or low_battery_land
     high_thrust: bool = False  # collective thrust at or above hover
     impact: bool = False  # IMU jolt upwards with thrust at most hover: the floor stopped us
-    floor_holds: bool = False  # thrust far below hover for a while and no fall: the floor holds us up
 
 
 class ImpactDetector:
@@ -52,30 +51,6 @@ class ImpactDetector:
         return lift_m_s2 > threshold
 
 
-class FloorHoldDetector:
-    """The floor holding the vehicle up: the thrust set-point below ``thrust_frac`` of the hover
-    thrust for ``hold_s`` while the IMU's mean vertical acceleration over that time stays above
-    ``-accel_m_s2``. In the air that thrust makes the vehicle fall (half the hover thrust: 4.9 m/s^2
-    for the nominal vehicle, 2.8 for one 30 % lighter); on the floor the vertical speed loop, asking
-    for a descent the floor refuses, winds the thrust down while nothing moves. It catches a
-    touchdown whose jolt was softer than ``ImpactDetector``'s threshold where no height is measured
-    (mode -2's descent at '+val.' ending on the floor at 0.12 m/s gave 2.95 m/s^2 against 3, and the
-    vehicle sat on the floor 'flying' to the end of the flight)."""
-
-    def __init__(self, thrust_frac: float, hold_s: float, accel_m_s2: float) -> None:
-        self.thrust_frac, self.hold_s, self.accel_m_s2 = thrust_frac, hold_s, accel_m_s2
-        self._low_s = 0.0
-        self._dv = 0.0  # the IMU's vertical speed change since the thrust went low
-
-    def update(self, thrust_over_hover: float, accel_z_m_s2: float | None, dt: float, airborne: bool) -> bool:
-        if not airborne or accel_z_m_s2 is None or thrust_over_hover >= self.thrust_frac:
-            self._low_s, self._dv = 0.0, 0.0
-            return False
-        self._low_s += dt
-        self._dv += accel_z_m_s2 * dt
-        return self._low_s >= self.hold_s and self._dv > -self.accel_m_s2 * self._low_s
-
-
 class FlightMachine:
     """Transitions on user buttons, the estimated height, time and thrust. ``now`` passed in.
 
@@ -84,8 +59,7 @@ class FlightMachine:
     high thrust. taking_off/flying -> descending: land button or low battery.
     descending -> landing: height below ``flying_height_m``.
     flying -> landing: alarm mode -1 below that height, or in any alarm mode the jolt of
-    touching the floor, or the floor holding the vehicle up (:class:`FloorHoldDetector`; mode -2
-    has no height reference: the descent ends on the floor).
+    touching the floor (mode -2 has no height reference: the descent ends on the floor).
     landing -> landed: touchdown (height at the sonar's minimum, no vertical speed) and the thrust
     ramp-down finished, or the ramp's time-out (only without a height reference or below 0.5 m).
     """
@@ -148,7 +122,7 @@ class FlightMachine:
             if unmeasured and not high and self._measured is not None:
                 h, t = self._measured
                 high = now - t < (h - p.flying_height_m) / self.fastest_descent_m_s
-            if unmeasured and (ev.impact or ev.floor_holds) and not high:
+            if unmeasured and ev.impact and not high:
                 self._go(FlightState.LANDING, now)
                 self.touchdown_s = now
             elif s is FlightState.FLYING and ev.land_requested:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from inspect_pipe.flight_stack.behaviors import MAVBehaviors
 from inspect_pipe.flight_stack.control import FlightController
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater, without_stale_imu
-from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState, FloorHoldDetector, ImpactDetector
+from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState, ImpactDetector
 from inspect_pipe.flight_stack.messages import (
     HOVER,
     AttitudeSetpoint,
@@ -56,8 +56,6 @@ class OnboardStack:
         self._pre_alarm_height_m: float | None = None  # height held when an alarm mode began
         self._was_alarm = False
         self._impact = ImpactDetector(p.flight_machine.impact_accel_m_s2, p.flight_machine.impact_noise_sigma)
-        fmp = p.flight_machine
-        self._floor = FloorHoldDetector(fmp.floor_hold_thrust_frac, fmp.touchdown_confirm_s, fmp.floor_hold_accel_m_s2)
 
     @property
     def fsm(self) -> FlightState:
@@ -90,10 +88,6 @@ class OnboardStack:
                 high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
                 impact=measurements.imu is not None
                 and self._impact.update(self.controller.unexplained_lift_m_s2(measurements.imu.az_m_s2), airborne),
-                floor_holds=self._floor.update(
-                    self._last_thrust / p.control.hover_thrust_frac,
-                    None if measurements.imu is None else measurements.imu.az_m_s2 - self.controller.accel_bias[2],
-                    dt, airborne),
             ),
         )
         ctrl = self.controller

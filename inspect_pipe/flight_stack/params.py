@@ -239,25 +239,11 @@ class FlightMachineParams:
     takeoff_high_thrust_s: float = param(4.0, 0.5, 20.0, "s", "or after this long at high thrust")
     hover_height_m: float = param(1.0, 0.5, 5.0, "m", "height held after take-off")
     descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s", "descending (land requested) until flying_height_m")
-    touchdown_confirm_s: float = param(
-        0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown (with no height measured, "
-        "the floor holding the vehicle up this long, floor_hold_thrust_frac)"
-    )
+    touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s", "final landing speed (below the 1 m/s a floor contact counts as a crash)")
     impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
     impact_noise_sigma: float = param(
         5.0, 0.0, 20.0, "sigma", "... and beyond this many RMS of the IMU's recent unexplained lift in flight (vibration)"
-    )
-    floor_hold_thrust_frac: float = param(
-        0.5, 0.1, 0.9, "1", "no height measured: a thrust set-point below this share of the hover thrust for "
-        "touchdown_confirm_s, while the IMU's mean vertical acceleration stays above -floor_hold_accel_m_s2, is the "
-        "floor holding the vehicle up: a touchdown whose jolt was too soft for impact_accel_m_s2 (a 0.12 m/s alarm "
-        "descent's gave 2.95 m/s^2 with a faster XY trim, tried in session 26; the vehicle then sat on the floor, "
-        "'flying', its thrust winding down)"
-    )
-    floor_hold_accel_m_s2: float = param(
-        1.0, 0.1, 5.0, "m/s^2", "... (in the air, half the hover thrust drops the nominal vehicle at 4.9 m/s^2, one "
-        "30 % lighter at 2.8)"
     )
     landing_ramp_s: float = param(1.5, 0.2, 20.0, "s", "thrust ramp-down after touchdown")
 

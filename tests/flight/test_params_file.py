@@ -109,10 +109,8 @@ def test_every_parameter_is_declared_with_unit_bounds_and_a_reason():
     rows = describe()
     # Issue 19 aims at half of 98 (101 before session 10); at least no more than today: 94 after
     # session 18, 89 since session 21 merged five that held the same value for the same role (session
-    # 22 added the observers' noise sigma and merged the vertical speed loop's integral gain with the XY one);
-    # 91 since session 26 added the floor-hold touchdown's thrust share and acceleration band (its time is
-    # touchdown_confirm_s).
-    assert len(rows) <= 91
+    # 22 added the observers' noise sigma and merged the vertical speed loop's integral gain with the XY one).
+    assert len(rows) <= 89
     for name, value, lo, hi, unit, reason in rows:
         assert unit and lo <= value <= hi and len(reason) > 10, name
     # AND docs/flight.md states the count the code has

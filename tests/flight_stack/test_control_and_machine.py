@@ -9,7 +9,7 @@ import pytest
 from inspect_pipe.flight_stack.control import G, PID, FlightController, VerticalMode
 from inspect_pipe.flight_stack.flight_machine import FlightEvents, FlightMachine, FlightState
 from inspect_pipe.flight_stack.messages import EstimationMode, SpeedCommand, StateEstimate
-from inspect_pipe.flight_stack.params import BehaviorParams, ControlParams, FlightMachineParams
+from inspect_pipe.flight_stack.params import BehaviorParams, ControlParams
 
 
 def _est(alt=1.0, vx=0.0, vy=0.0, vz=0.0, mode=EstimationMode.BOTTOM):
@@ -323,24 +323,3 @@ def test_xy_integrators_follow_the_command_model_not_the_step_and_relax_while_bl
     expected = 0.2 * (1.0 - p.speed_ki_1_s2 / p.speed_kp_1_s * 0.02) ** 50
     assert c.pid_vx.integral == pytest.approx(expected, rel=1e-9)
     assert c.pid_vx.integral < 0.1
-
-
-def test_the_floor_holding_the_vehicle_up_is_a_touchdown_where_no_height_is_measured():
-    from inspect_pipe.flight_stack.flight_machine import FloorHoldDetector
-
-    p = FlightMachineParams()
-    det = FloorHoldDetector(p.floor_hold_thrust_frac, p.touchdown_confirm_s, p.floor_hold_accel_m_s2)
-    dt = 0.02
-    # GIVEN the thrust set-point wound down to 0.3 of hover while the IMU shows no vertical motion (the floor)
-    seen = [det.update(0.3, 0.05 * (-1) ** k, dt, airborne=True) for k in range(int(p.touchdown_confirm_s / dt) + 2)]
-    # THEN it is the floor once it has lasted touchdown_confirm_s, not before
-    assert not any(seen[:int(p.touchdown_confirm_s / dt) - 1]) and seen[-1]
-    # GIVEN the same thrust in the air: the vehicle falls (2.8 m/s^2 for one 30 % lighter than nominal)
-    det = FloorHoldDetector(p.floor_hold_thrust_frac, p.touchdown_confirm_s, p.floor_hold_accel_m_s2)
-    assert not any(det.update(0.3, -2.8, dt, airborne=True) for _ in range(100))
-    # AND a thrust at or above the share, or a vehicle not airborne, never counts (the time starts again)
-    det = FloorHoldDetector(p.floor_hold_thrust_frac, p.touchdown_confirm_s, p.floor_hold_accel_m_s2)
-    assert not any(det.update(p.floor_hold_thrust_frac, 0.0, dt, airborne=True) for _ in range(100))
-    assert not any(det.update(0.3, 0.0, dt, airborne=False) for _ in range(100))
-    assert not any(det.update(0.3, 0.0, dt, airborne=True) if k % 5 else det.update(0.9, 0.0, dt, airborne=True)
-                   for k in range(100))
