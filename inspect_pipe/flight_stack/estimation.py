@@ -2,8 +2,9 @@
 
 :func:`select_mode` maps the valid sensor set to the mode; :data:`TABLE_I` says, per mode, which
 measurement feeds which state; :class:`MAVStateUpdater` feeds them: the horizontal and vertical speeds are one
-:class:`SpeedObserver` per axis (speed and accelerometer bias, the IMU as input), the height and
-the front range are :class:`RangeObserver` s (the height one tells floor steps from motion), all in
+:class:`SpeedObserver` per axis (speed and accelerometer bias, the IMU as input; the flows and the
+sonars' range rates are its measurements), the height is a :class:`HeightEstimator` (it tells floor
+steps from motion) and the front range a :class:`RangeObserver` carried by the x speed, all in
 ``observers.py``. Optical-flow speeds are preferred over range derivatives. The alarm modes (-1,
 -2) fill the missing vertical state with a positive speed, so that the speed controllers make the
 vehicle descend; their horizontal speed, zero in the paper, is here the observers' speed carried
@@ -29,7 +30,6 @@ from inspect_pipe.flight_stack.sensor_health import (
     ReadingLedger,
     SensorHealth,
     SensorStatus,
-    fresh_range,
 )
 
 __all__ = ["SONAR_FLOOR_M", "TABLE_I", "TOF_FLOOR_M", "Feeds", "MAVStateUpdater", "SensorStatus", "Source", "select_mode", "without_stale_imu"]
@@ -116,7 +116,8 @@ class MAVStateUpdater:
         self.height = HeightEstimator(
             jump_m=p.height_jump_m, settle_samples=p.height_step_settle_samples, step_min_height_m=p.sonar_clamp_zone_m, **k
         )
-        self.front = RangeObserver(jump_m=p.height_jump_m, **k)
+        # the front range: carried by the x observer's speed (it has no rate or bias of its own)
+        self.front = RangeObserver(jump_m=p.height_jump_m, k1=k["k1"], k2=0.0)
         #: the speed observers along x, y (heading frame) and z: speed and accelerometer bias
         self.obs = tuple(
             SpeedObserver(accel_noise=p.accel_noise_m_s2, bias_walk=p.bias_walk_m_s2, gate=p.observer_gate_sigma)
@@ -185,10 +186,10 @@ class MAVStateUpdater:
         if m.imu is not None and self._ledger.new("imu", m.imu.stamp_s):
             self._predict(ax, ay, az, min(self._imu_dt, p.imu_timeout_s))
             self._imu_dt = 0.0
-        self.health.restart_after_stuck_flow(self.obs, self.front)
+        self.health.restart_after_stuck_flow(self.obs)
 
-        self._front_range(now, m, ax, bflow)
         vx, vy = self._horizontal_speeds(now, m, feeds, status, bflow, fflow)
+        self._front_range(now, m, vx)
         if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
         vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
@@ -226,36 +227,26 @@ class MAVStateUpdater:
         else:
             self._had_imu = True
 
-    def _front_range(self, now: float, m: Measurements, ax: float, bflow) -> None:
-        """The front range (vx in modes 2 and 3, the front clearance always). Flow speed, when
-        there is one, drives the range between samples; otherwise the IMU does.
-
-        One accelerometer bias along x: the x observer's (learnt from the bottom flow) while there
-        is one; without it the front range observer's own bias state, which the sonar corrects
-        (modes 2 and 3). Not shared, the speed loop pushed with a bias only one of them knew, and
-        the Fig. 5 hover in mode 2 drifted 0.30 m.
-
-        The flow drives the range only where the x observer's gate would take it: a reading it
-        refuses is a glitch here too (campaign seed 11 e428: one low-texture bottom-flow reading at
-        the quality threshold, 0.46 m/s against 0.01, refused by the observer, became the front
-        range's rate; in mode 2 that rate fed the observer until it restarted at it, and the
-        link-loss station keeping chased the phantom 0.47 m/s for 0.3 m)."""
+    def _front_range(self, now: float, m: Measurements, vx: float) -> None:
+        """The front range (the front clearance): carried between the sonar's 10 Hz samples by the
+        x observer's speed, corrected by each sample. It measures no speed itself: in modes 2 and 3
+        the front sonar's range rate is a measurement of the x observer like any other
+        (``_horizontal_speeds``), so one observer holds the speed and the accelerometer's bias
+        along x. Before, the range observer had its own rate and bias, fed the x observer its
+        rate every tick and had a single noisy flow reading replace that rate: with the bottom
+        flow's quality at its threshold on low texture (one reading in ten taken, 0.2 m/s of
+        noise), the rate swung 0.3-0.4 m/s off the truth, the bias learnt the swing, and the
+        link-loss station keeping drifted 0.48 m (fresh campaign seed 281 e812)."""
         p = self.p
-        flow_rate = (-bflow.vx_m_s if bflow is not None and self.obs[0].consistent(bflow.vx_m_s, p.speed_noise_m_s)
-                     else None)
-        self.front.propagate(now, -ax, flow_rate)
+        self.front.propagate(now, rate=-vx)
         fs = m.front_sonar
         if fs is not None and fs.range_m is not None and self._ledger.new("front_range", fs.stamp_s):
             self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
-        if bflow is not None:
-            self.front.bias = -self.obs[0].b
-        elif fresh_range(fs, now, p.sonar_timeout_s, p.sonar_max_range_m):
-            self.obs[0].b = -self.front.bias
 
     def _horizontal_speeds(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus,
                            bflow, fflow) -> tuple[float, float]:
-        """Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front range's
-        rate and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
+        """Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front sonar's
+        range rate and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
         (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
         PX4Flow's output holds the body rotation its own gyro's scale error leaves in (scale x
         rate x distance), and the speed PID closed a loop through it and the attitude that
@@ -286,12 +277,11 @@ class MAVStateUpdater:
                 oy.correct(bflow.vy_m_s * scale, noise, learn_bias=not clamped)
         elif feeds.vx is Source.FRONT_RANGE_RATE:
             assert fflow is not None
-            # Modes 2 and 3: vx is the front range's rate, which is the speed only while the
-            # heading holds: turning, the range to a wall at an angle changes without any
+            # Modes 2 and 3: vx is the front sonar's range rate (the slope of its last samples, as in
+            # the alarm modes), which is the speed only while the heading holds: turning, the range to a wall at an angle changes without any
             # translation (pushed while yawing, the rate said 0.2 m/s while the vehicle sped up to
             # 0.77 m/s). While turning, vx is carried on with the IMU alone.
-            if self._yaw is None or not self.rates.turning(now, self._yaw):
-                ox.correct(-self.front.rate, noise)
+            self.rates.correct(now, self._yaw, self.obs, axes=(0,))
             if self._ledger.new("front_flow", fflow.stamp_s):
                 oy.correct(fflow.vy_m_s, noise)
         else:

@@ -108,8 +108,8 @@ class SpeedObserver:
     """
 
     V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
-    # measurements refused in a row: half a second of the 10 Hz flows and sonar rates, which are taken once a
-    # reading; 0.1 s of the front range's and the height's rates, which are offered every 50 Hz tick (modes 1-3)
+    # measurements refused in a row: half a second of the 10 Hz flows and sonar range rates, which are taken once
+    # a reading; 0.1 s of the height's rate, which is offered every 50 Hz tick (modes 0 and -1)
     RESTART_AFTER = 5
 
     __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused")

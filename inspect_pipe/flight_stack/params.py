@@ -109,8 +109,8 @@ class EstimationParams:
         0.1, 0.01, 2.0, "m", "... moved this far along the sonar's axis meanwhile: the sonar is stuck (reads as silent)"
     )
     observer_pole_1_s: float = param(
-        1.5, 0.1, 20.0, "1/s", "range observers (height, front range): triple pole of the range / rate / "
-        "accelerometer-bias observer (gains 3L, 3L^2, L^3)"
+        1.5, 0.1, 20.0, "1/s", "range observers: triple pole of the height's range / rate / accelerometer-bias "
+        "observer (gains 3L, 3L^2, L^3); the front range, carried by the x observer's speed, takes 3L of each residual"
     )
 
 

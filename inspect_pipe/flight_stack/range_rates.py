@@ -42,8 +42,8 @@ class SonarRangeRates:
         for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
             slope = self.slopes[name]
             if r is not None and self.ledger.new(f"{name}_samples", r.stamp_s):
-                valid = r.range_m is not None and r.range_m <= p.sonar_max_range_m
-                slope.add(r.stamp_s, r.range_m if valid else None)
+                if r.range_m is not None and r.range_m <= p.sonar_max_range_m:
+                    slope.add(r.stamp_s, r.range_m)
             fresh = r is not None and now - r.stamp_s <= p.sonar_timeout_s
             self.rates[name] = slope.rate(now) if fresh else None
 
@@ -67,7 +67,7 @@ class SonarRangeRates:
             return True
         return abs(math.remainder(hist[-1][1] - hist[0][1], math.tau)) > self.p.alarm_slope_max_turn_rad
 
-    def correct(self, now: float, yaw: float | None, obs: tuple[SpeedObserver, ...]) -> None:
+    def correct(self, now: float, yaw: float | None, obs: tuple[SpeedObserver, ...], axes: tuple[int, ...] = (0, 1)) -> None:
         """The alarm modes' horizontal speed measurements, into the x and y observers.
 
         A range rate is the slope of the last ``window_s`` of samples: the speed at their mean
@@ -82,6 +82,8 @@ class SonarRangeRates:
             return
         noise = p.speed_noise_m_s
         for axis, sensors in ((0, (("front", -1.0),)), (1, (("left", -1.0), ("right", 1.0)))):
+            if axis not in axes:
+                continue
             ob, found = obs[axis], []
             for name, sign in sensors:
                 rate, t_mid = self.rates[name], self.slopes[name].t_mid

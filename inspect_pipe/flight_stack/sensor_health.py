@@ -13,7 +13,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.messages import Measurements, RangeReading
-from inspect_pipe.flight_stack.observers import RangeObserver, SpeedObserver, StuckCheck
+from inspect_pipe.flight_stack.observers import SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.params import EstimationParams
 
 # The height below which a bottom range sensor's reading is its clamp, within its noise: the HRLV
@@ -100,16 +100,16 @@ class SensorHealth:
             front_px=f_flow and f_sonar,
         )
 
-    def restart_after_stuck_flow(self, obs: tuple[SpeedObserver, ...], front: RangeObserver) -> None:
+    def restart_after_stuck_flow(self, obs: tuple[SpeedObserver, ...]) -> None:
         """A flow found stuck has fed its repeated value into the estimate since it stuck (the
         check needs the IMU to disagree by ``flow_stuck_imu_dv_m_s`` first); the observers that
         take over restart from what it would read now instead (``StuckCheck.likely_value``).
-        Continuing from the stuck value, the front range observer of mode 2 needed a second to
-        find the real speed, and the vehicle flew 0.15 m past the stop line meanwhile."""
+        Continuing from the stuck value, the front range observer of mode 2 (then the source of
+        vx there) needed a second to find the real speed, and the vehicle flew 0.15 m past the
+        stop line meanwhile."""
         ox, oy, oz = obs
         if self._newly_stuck["bottom"]:
             vx, vy = self._stuck["bottom"].likely_value()
-            front.rate = -vx
             ox.restart(vx)
             oy.restart(vy)
         if self._newly_stuck["front"]:
