@@ -195,7 +195,7 @@ class MAVStateUpdater:
         vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
         climb = self._alarm_climb(now, mode)
         height_floor = self._height(now, m, feeds, status, az, vz_flow, climb)
-        vz = self._vertical_speed(feeds, vz_flow, climb, dt)
+        vz = self._vertical_speed(feeds, vz_flow, climb, dt, m)
 
         self.rates.note_speed(now, vx, vy)
         est = StateEstimate(
@@ -258,7 +258,6 @@ class MAVStateUpdater:
         rates correct them where they hear a wall (``SonarRangeRates.correct``)."""
         p = self.p
         ox, oy, _ = self.obs
-        noise = p.speed_noise_m_s
         if feeds.vx is Source.BOTTOM_FLOW:
             assert bflow is not None
             # The PX4Flow scales its angular flow by its own sonar's range; below the sonar's
@@ -273,8 +272,9 @@ class MAVStateUpdater:
             clamped = bs is not None and bs.range_m is not None and bs.range_m < p.sonar_clamp_zone_m
             if self._ledger.new("bottom_flow", bflow.stamp_s):
                 scale = min(1.0, tof.range_m / bs.range_m) if clamped and status.bottom_tof else 1.0  # type: ignore[union-attr,operator]
-                ox.correct(bflow.vx_m_s * scale, noise, learn_bias=not clamped)
-                oy.correct(bflow.vy_m_s * scale, noise, learn_bias=not clamped)
+                fnoise = self._flow_noise(bs.range_m * scale)  # type: ignore[union-attr,operator]
+                ox.correct(bflow.vx_m_s * scale, fnoise, learn_bias=not clamped)
+                oy.correct(bflow.vy_m_s * scale, fnoise, learn_bias=not clamped)
         elif feeds.vx is Source.FRONT_RANGE_RATE:
             assert fflow is not None
             # Modes 2 and 3: vx is the front sonar's range rate (the slope of its last samples, as in
@@ -283,7 +283,7 @@ class MAVStateUpdater:
             # 0.77 m/s). While turning, vx is carried on with the IMU alone.
             self.rates.correct(now, self._yaw, self.obs, axes=(0,))
             if self._ledger.new("front_flow", fflow.stamp_s):
-                oy.correct(fflow.vy_m_s, noise)
+                oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m))  # type: ignore[union-attr,arg-type]
         else:
             self.rates.correct(now, self._yaw, self.obs)
         return ox.v, oy.v
@@ -327,7 +327,7 @@ class MAVStateUpdater:
             self.height.update(source.range_m, source.stamp_s - latency)  # type: ignore[arg-type]
         return height_floor
 
-    def _vertical_speed(self, feeds: Feeds, vz_flow: float | None, climb: float, dt: float) -> float:
+    def _vertical_speed(self, feeds: Feeds, vz_flow: float | None, climb: float, dt: float, m: Measurements) -> float:
         """Vertical speed (Table I): the front flow's, else the height's derivative, plus "+val."
         in the alarm modes.
 
@@ -346,7 +346,7 @@ class MAVStateUpdater:
         slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent)."""
         oz, noise = self.obs[2], self.p.speed_noise_m_s
         if vz_flow is not None:
-            oz.correct(vz_flow, noise)
+            oz.correct(vz_flow, self._flow_noise(m.front_sonar.range_m))  # type: ignore[union-attr,arg-type]
         elif feeds.vz in (Source.HEIGHT_RATE, Source.HEIGHT_RATE_AND_VAL):
             oz.correct(self.height.rate_m_s, noise, learn_bias=False)
         if feeds.vz is Source.HEIGHT_RATE_AND_VAL:
@@ -355,6 +355,15 @@ class MAVStateUpdater:
             oz.v -= math.copysign(min(abs(oz.v), self.p.alarm_vz_leak_m_s2 * dt), oz.v)
             return oz.v + climb
         return vz_flow if vz_flow is not None else self.height.rate_m_s
+
+    def _flow_noise(self, range_m: float) -> float:
+        """The speed noise of a PX4Flow reading: its angular noise times the range it sees (it scales
+        its angular flow by that range, as PX4's EKF2 weighs flow in rad/s). Taken with one speed
+        noise whatever the range, the front flow 4.9 m from a wall (0.2 m/s of noise there) counted as
+        much as at 2 m, and four readings taken as a range loss began moved the vertical bias by
+        0.044 m/s^2: the alarm descent that followed ran at 0.44 m/s instead of 0.2 (campaign seed
+        287 e1354). Below the sonar's clamp the range is the clamp's."""
+        return self.p.flow_noise_rad_s * max(range_m, SONAR_FLOOR_M)
 
     def _flow_to_heading(self, roll: float, pitch: float, bflow, fflow):
         """The PX4Flow units measure in the body frame; the estimate is in the heading frame.

@@ -63,9 +63,13 @@ class EstimationParams:
         "wanders (the attitude estimate's drift and transients x g); learnt in ~3 s from the flow"
     )
     speed_noise_m_s: float = param(
-        0.1, 0.001, 2.0, "m/s", "speed observers: noise of one speed measurement: a flow speed (PX4Flow noise and the "
-        "rotation its gyro leaves in; with accel_noise_m_s2 the speed follows it at ~0.15 s) or a sonar's range rate, "
-        "a slope over 0.45 s (0.015 m samples at 5 m give 0.05 m/s; consecutive slopes share 4 of 5 samples: x2)"
+        0.1, 0.001, 2.0, "m/s", "speed observers: noise of one range rate (a sonar's: a slope over 0.45 s, 0.015 m "
+        "samples at 5 m give 0.05 m/s, consecutive slopes share 4 of 5 samples: x2; the height's)"
+    )
+    flow_noise_rad_s: float = param(
+        0.05, 0.001, 1.0, "rad/s", "speed observers: angular noise of one PX4Flow reading (its image noise and the "
+        "rotation its gyro leaves in); its speed noise is this x the range it sees (0.1 m/s at 2 m; as PX4's EKF2 "
+        "takes flow in rad/s)"
     )
     observer_gate_sigma: float = param(
         4.0, 1.0, 20.0, "sigma", "speed observers: an innovation beyond this many standard deviations is not used (5 in a row: restart)"
@@ -128,7 +132,10 @@ class BehaviorParams:
         "distance (beyond the dead band; at 1.6 a vehicle found 0.2 m inside once its range sensors came back, a blind "
         "drift, was still 0.13 m inside a second later), and waiting_for_connectivity's speed back to the held point"
     )
-    repulsion_max_m_s: float = param(0.4, 0.05, 1.0, "m/s", "prevent_collision backs away at most this fast (Fig. 6 E-F)")
+    hold_speed_max_m_s: float = param(
+        0.4, 0.05, 1.0, "m/s", "the position holds move at most this fast: prevent_collision backing away (Fig. 6 E-F) "
+        "and waiting_for_connectivity's station keeping"
+    )
     oblique_margin_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "a range closing this much faster than the speed along its sensor's axis: an oblique "
         "surface (prevent_collision, and the estimator's oblique-wall fit)"
@@ -144,7 +151,6 @@ class BehaviorParams:
     link_loss_rest_m_s: float = param(
         0.1, 0.0, 1.0, "m/s", "waiting_for_connectivity: hover until the speed estimate is below this, then hold that point"
     )
-    link_loss_hold_max_m_s: float = param(0.5, 0.0, 1.0, "m/s", "waiting_for_connectivity: largest station-keeping speed")
     covered_half_angle_deg: float = param(
         15.0, 0.0, 45.0, "deg", "half-width of the horizontal sonars' beams (the reading is the nearest echo in it): "
         "motion within it of an axis is seen; the estimator's oblique-wall fit uses it too"

@@ -94,7 +94,7 @@ def test_prevent_collision_repulsion_grows_with_proximity_and_is_capped():
     v09 = pc.update(_in(front=0.9), 0.02).vx_m_s
     v06 = pc.update(_in(front=0.6), 0.02).vx_m_s
     v01 = pc.update(_in(front=0.1), 0.02).vx_m_s
-    assert v09 < 0 and v06 < v09 and v01 == -P.repulsion_max_m_s
+    assert v09 < 0 and v06 < v09 and v01 == -P.hold_speed_max_m_s
     assert pc.update(_in(front=3.0, vx=0.4), 0.02) is None
     side = pc.update(_in(left=0.8, right=0.9), 0.02)
     assert side.vy_m_s == pytest.approx(-P.position_gain_1_s * 0.2 + P.position_gain_1_s * 0.1)

@@ -31,7 +31,7 @@ class PreventCollision:
         if distance_m < p.safe_distance_m:
             return -repulsion_m_s(
                 distance_m, safe_m=p.safe_distance_m, gain_1_s=p.position_gain_1_s,
-                max_m_s=p.repulsion_max_m_s, deadband_m=deadband_m,
+                max_m_s=p.hold_speed_max_m_s, deadband_m=deadband_m,
             )
         if must_stop(
             distance_m, closing_m_s, safe_m=p.safe_distance_m,

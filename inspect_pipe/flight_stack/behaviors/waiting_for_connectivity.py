@@ -4,7 +4,7 @@ The paper's behaviour commands zero speed (hover), and so does this one until th
 braked to rest (estimated speed below ``link_loss_rest_m_s``). A speed loop told "zero" then
 gives way to a gust or to an estimator's slow error, so from there on the vehicle holds the
 odometry position where it came to rest: a speed towards it of ``position_gain_1_s`` per
-metre of error, at most ``link_loss_hold_max_m_s``. (Holding the point where the loss was
+metre of error, at most ``hold_speed_max_m_s``. (Holding the point where the loss was
 detected instead flew the vehicle back over its own braking distance, 0.3 m from 0.8 m/s,
 with nobody at the stick.) Without odometry (no heading from the autopilot) it is the paper's
 plain hover, and so it is in the alarm modes (-1, -2): there no sensor measures the horizontal
@@ -44,7 +44,7 @@ class WaitingForConnectivity:
             if math.hypot(e.vx_m_s, e.vy_m_s) >= self.p.link_loss_rest_m_s:
                 return AxisVector.full(HOVER)
             self._hold = (x, y)
-        k, vmax = self.p.position_gain_1_s, self.p.link_loss_hold_max_m_s
+        k, vmax = self.p.position_gain_1_s, self.p.hold_speed_max_m_s
         ex, ey = self._hold[0] - x, self._hold[1] - y
         vx_w, vy_w = k * ex, k * ey
         n = math.hypot(vx_w, vy_w)
