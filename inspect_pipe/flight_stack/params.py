@@ -64,12 +64,13 @@ class EstimationParams:
     )
     speed_noise_m_s: float = param(
         0.1, 0.001, 2.0, "m/s", "speed observers: noise of one range rate (a sonar's: a slope over 0.45 s, 0.015 m "
-        "samples at 5 m give 0.05 m/s, consecutive slopes share 4 of 5 samples: x2; the height's)"
+        "samples at 5 m give 0.05 m/s, consecutive slopes share 4 of 5 samples: x2; the height's) and the least "
+        "of a flow reading's"
     )
     flow_noise_rad_s: float = param(
         0.05, 0.001, 1.0, "rad/s", "speed observers: angular noise of one PX4Flow reading (its image noise and the "
-        "rotation its gyro leaves in); its speed noise is this x the range it sees (0.1 m/s at 2 m; as PX4's EKF2 "
-        "takes flow in rad/s)"
+        "rotation its gyro leaves in); its speed noise is this x the range it sees, as PX4's EKF2 takes flow in "
+        "rad/s, and at least speed_noise_m_s (so beyond 2 m it counts less than before, nearer as before)"
     )
     observer_gate_sigma: float = param(
         4.0, 1.0, 20.0, "sigma", "speed observers: an innovation beyond this many standard deviations is not used (5 in a row: restart)"

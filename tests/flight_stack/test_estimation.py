@@ -456,8 +456,8 @@ def test_alarm_mode_carries_on_the_filtered_speed_not_the_last_noisy_reading():
         last.append(reading)
     # THEN the speed carried on is the speed observer's (flow and IMU), not the last reading's
     # (held, that alone would drift the vehicle 0.1-0.2 m in 2 s): under half of it on average
-    # (0.02 against 0.05 m/s) and in RMS (0.43 of it; 0.38 while every flow was taken with 0.1 m/s
-    # of noise at any range: the flow at 1.5 m now counts as 0.075 m/s)
+    # (0.02 against 0.05 m/s) and in RMS (0.38 of it; 0.43 with a flow at 1.5 m counted as 0.075
+    # m/s of noise, its angular noise times its range without the floor at speed_noise_m_s)
     def rms(xs):
         return math.sqrt(statistics.fmean(x * x for x in xs))
 
