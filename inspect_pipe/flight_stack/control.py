@@ -239,11 +239,12 @@ class FlightController:
         ff = p.speed_drag_ff_1_s
         # The XY integrators take the speed's deviation from a reference model of the command (a
         # first-order lag with the P term's time constant), as the vertical one does below: a
-        # command step is the P term's to follow, so the integrators can be fast (ki 3 /s^2, an
-        # integral time of 0.7 s) without winding up on every step, and they then follow the air's
-        # slowly varying push (0.04 m/s^2 rms, 2 s correlation in the simulator) that the P term
-        # alone left as 0.02 m/s of speed error: inspection passes 0.173-0.239 m/s for 0.20 on 20
-        # seeds of Fig. 7 with ki 0.6 on the raw error, 0.184-0.215 now (docs/flight.md).
+        # command step is the P term's to follow, so the integrators can be fast (ki 5 /s^2, an
+        # integral time of 0.44 s, damping 0.49 with kp 2.2) without winding up on every step, and
+        # they then follow the air's slowly varying push (0.04 m/s^2 rms, 2 s correlation in the
+        # simulator) that the P term alone left as 0.02 m/s of speed error: inspection passes
+        # 0.173-0.239 m/s for 0.20 on 20 seeds of Fig. 7 with ki 0.6 on the raw error, 9 of 60
+        # passes off by more than 0.01 with ki 3, none of 60 on fresh seeds with 5 (docs/flight.md).
         rx, ry = self._vxy_ref if self._vxy_ref is not None else (est.vx_m_s, est.vy_m_s)
         k = min(1.0, p.speed_kp_1_s * dt)
         rx, ry = rx + (cmd.vx_m_s - rx) * k, ry + (cmd.vy_m_s - ry) * k

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
+from pathlib import Path
 
 import pytest
 
-from inspect_pipe.flight import ExitStatus
+from inspect_pipe.flight import ExitStatus, load_scenario, run_scenario
 from inspect_pipe.flight_stack import EstimationMode, FlightState
 
 
@@ -108,6 +110,24 @@ def test_fig7_inspection_mode_sweeps_at_fixed_speed_and_ignores_longitudinal_and
     assert min(r.dist_true.front for r in inspecting) >= 0.85
     assert f.result.final_fsm is FlightState.LANDED
     assert f.result.status is ExitStatus.COMPLETED
+
+
+def test_fig7_inspection_passes_hold_the_paper_speed_across_seeds():
+    # GIVEN the Fig. 7 sweep flown with 20 seeds (air disturbance, sensor and attitude errors
+    # drawn anew for each), each lateral pass's mean true speed from 2 s after its command
+    base = load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "fig7_inspection_sweep.yaml")
+    errors = []
+    for seed in range(321, 341):
+        ticks = []
+        run_scenario(dataclasses.replace(base, seed=seed), on_tick=ticks.append)
+        for t0, t1 in ((10.0, 15.5), (23.0, 26.5), (33.0, 35.5)):
+            errors.append(abs(statistics.fmean(r.vel_true[1] for r in ticks if t0 <= r.t <= t1)) - 0.2)
+    # THEN the passes fly the inspection speed, 0.20 +- 0.01 m/s, with at most one of 60 off and
+    # none by more than 0.015 (measured: none off, rms 0.0039; with the XY trim's ki 3 of
+    # sessions 21-27: 3 of 60 off, rms 0.0051)
+    assert sum(abs(e) > 0.01 for e in errors) <= 1
+    assert max(abs(e) for e in errors) <= 0.015
+    assert math.sqrt(statistics.fmean(e * e for e in errors)) < 0.0045
 
 
 @pytest.mark.parametrize("mode", [0, 1, 2, 3])

@@ -793,3 +793,34 @@ def test_a_wall_at_the_sonars_range_limit_still_measures_the_speed_in_mode_2():
     # out-of-range reading left the x observer carrying the bias: a link-loss hold drifted 0.35 m,
     # campaign seed 283 e892)
     assert worst < 0.08
+
+
+def _front_flow_burst(front_range_m: float) -> tuple[float, float]:
+    """Mode 1 hover (still, level) with the front wall at ``front_range_m``; then four front-flow
+    readings claim a 0.3 m/s climb. Returns how far they moved the vertical speed and its bias."""
+    upd = MAVStateUpdater()
+    for k in range(150):  # 3 s: the observers settle on the still vehicle
+        t = 0.02 * k
+        upd.update(t, _meas(t, front_range=front_range_m, vx=0.0, vy=0.0, vz=0.0))
+    oz = upd.obs[2]
+    v0, b0 = oz.v, oz.b
+    for k in range(150, 154):
+        t = 0.02 * k
+        m = _meas(t, front_range=front_range_m, vx=0.0, vy=0.0, vz=0.0)
+        upd.update(t, dataclasses.replace(m, front_flow=dataclasses.replace(m.front_flow, vz_m_s=0.3)))
+    return abs(oz.v - v0), abs(oz.b - b0)
+
+
+def test_a_front_flow_reading_counts_less_the_further_the_wall_it_sees():
+    # GIVEN the same four front-flow readings claiming a climb, seen 1.0, 2.0 and 4.8 m from the wall
+    near_v, near_b = _front_flow_burst(1.0)
+    mid_v, mid_b = _front_flow_burst(2.0)
+    far_v, far_b = _front_flow_burst(4.8)
+    # THEN nearer than 2 m a reading counts as a range rate does (its noise is floored at
+    # speed_noise_m_s), and at 4.8 m, where a PX4Flow's angular noise is 0.24 m/s of speed, it moves
+    # the speed and the bias much less (taken at 0.1 m/s there, four readings moved the vertical bias
+    # by 0.044 m/s^2 as a range loss began, and the alarm descent ran at 0.44 m/s: seed 287 e1354)
+    assert near_v == pytest.approx(mid_v, rel=0.05) and near_b == pytest.approx(mid_b, rel=0.05)
+    # (measured: 0.136 m/s and 0.047 m/s^2 at 1 and 2 m, 0.071 and 0.024 at 4.8 m)
+    assert mid_v > 0.05 and mid_b > 0.01
+    assert far_v < 0.6 * mid_v and far_b < 0.6 * mid_b
