@@ -12,7 +12,10 @@
   +-``sonar_half_beam_deg`` (15 deg: MaxBotix's narrow-beam HRLV-EZ4 against the large flat plates
   of a hold); the nearest hit is the reading. A single ray along the axis missed the edge of a
   pillar or coaming that a real sonar hears (safety campaign: slides along a wall into a pillar's
-  side). The fan is horizontal only: the downward PX4Flow sonar and the ToF stay single rays.
+  side). The downward PX4Flow sonar has the same beam as a cone: the axis and ``sonar_cone_rays``
+  rays around it at the half-width, so a box top or a coaming under the rim of the beam is its
+  reading before the vehicle's centre is over it (as a real HRLV-EZ4 hears it). The TeraRanger
+  One, a laser with a 3 deg beam, stays a single ray.
 * TeraRanger One (bottom): 100 Hz, 0.2..14 m, 10 ms latency, +-2 cm.
 * Sonars miss their echo at shallow incidence: a flat steel plate reflects the pulse away, so a ray
   meeting its surface more than ``grazing_deg`` off the normal returns nothing with a probability
@@ -104,6 +107,7 @@ class SensorSpecs:
     miss_all_deg: float = 75.0  # incidence at which a sonar hears no echo from a flat plate at all
     sonar_half_beam_deg: float = 15.0  # horizontal sonars: half-width of the beam
     sonar_beam_rays: int = 5  # rays across the beam (odd: one on the axis)
+    sonar_cone_rays: int = 8  # downward sonar: rays around the axis at the half-width (0: the axis alone)
 
 
 @dataclass(frozen=True)
@@ -153,6 +157,17 @@ def _fan(axis_yaw_rad: float, specs: SensorSpecs) -> tuple[tuple[float, float, f
     n, half = max(1, specs.sonar_beam_rays), math.radians(specs.sonar_half_beam_deg)
     offsets = [0.0] + [half * (2.0 * k / (n - 1) - 1.0) for k in range(n) if n > 1 and 2 * k != n - 1]
     return tuple((math.cos(axis_yaw_rad + o), math.sin(axis_yaw_rad + o), 0.0) for o in offsets)
+
+
+def _cone(specs: SensorSpecs) -> tuple[tuple[float, float, float], ...]:
+    """Body-frame unit directions of the downward sonar's beam: the axis first, then
+    ``sonar_cone_rays`` rays evenly around it at ``sonar_half_beam_deg``."""
+    half, n = math.radians(specs.sonar_half_beam_deg), specs.sonar_cone_rays
+    rim = tuple(
+        (math.sin(half) * math.cos(2 * math.pi * k / n), math.sin(half) * math.sin(2 * math.pi * k / n), -math.cos(half))
+        for k in range(n)
+    )
+    return ((0.0, 0.0, -1.0),) + rim
 
 
 def _body_kinematics(sim: QuadrotorSim) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
@@ -270,7 +285,7 @@ class SensorSuite:
         self.fault_rng = random.Random(seed * 15485863 + 17)  # only faults draw from it
         self._faults = NO_FAULTS
         self._dirs = {
-            "bottom_sonar": ((0.0, 0.0, -1.0),), "bottom_tof": ((0.0, 0.0, -1.0),),
+            "bottom_sonar": _cone(self.s), "bottom_tof": ((0.0, 0.0, -1.0),),
             "front_sonar": _fan(0.0, self.s), "left_sonar": _fan(math.pi / 2, self.s), "right_sonar": _fan(-math.pi / 2, self.s),
         }
         # (name, channel, owning unit, beam directions or None for a flow output) in sampling

@@ -13,7 +13,7 @@ import pytest
 
 from inspect_pipe.flight import parse_scenario, run_scenario
 from inspect_pipe.flight.flight_log import record_to_json
-from inspect_pipe.flight.scenario import Hold, SensorName, World
+from inspect_pipe.flight.scenario import Box, Hold, SensorName, World
 from inspect_pipe.flight.sensors import AttitudeError, AttitudeSpec, SensorFaults, SensorSuite
 from inspect_pipe.flight.vehicle_sim import QuadrotorSim, mix
 from inspect_pipe.flight_stack.messages import G_M_S2, ImuReading
@@ -123,6 +123,25 @@ def test_sonar_misses_echoes_at_shallow_incidence():
     assert missed(0.0) == 0.0
     # THEN the fan's rays meet the plate 45-75 deg off its normal and most echoes are lost
     assert missed(math.radians(60)) > 0.5
+
+
+def test_the_downward_sonar_hears_a_box_top_under_its_beams_rim_and_the_laser_does_not():
+    # GIVEN the sensors 1.08 m above the floor, beside a 0.3 m box whose edge is 0.1 m to their
+    # side (inside the sonar's +-15 deg cone 0.78 m above its top: 0.21 m; beside the laser's ray)
+    world = World(Hold(14.0, 10.0, 8.0), boxes=(Box((5.0, 0.1, 0.0), (6.0, 3.0, 0.3)),))
+    sim = QuadrotorSim(world, (5.5, 0.0, 1.0), 0.0, seed=1)
+    suite = SensorSuite(seed=1)
+    got = []
+    for _ in range(800):
+        sim.t += 1 / 400
+        suite.sample(sim, frozenset())
+        got.append(suite.read(sim.t, sim))
+    sonar = [x.bottom_sonar.range_m for x in got[200:] if x.bottom_sonar and x.bottom_sonar.range_m]
+    tof = [x.bottom_tof.range_m for x in got[200:] if x.bottom_tof and x.bottom_tof.range_m]
+    # THEN the sonar reports the box top (its first echo: the rim ray's slant to it is 0.81 m) and
+    # the TeraRanger the floor (1.08 m); a single downward ray read the floor for both
+    assert sonar and max(sonar) < 0.85
+    assert tof and min(tof) > 1.0
 
 
 def test_mixer_keeps_attitude_first_and_a_weak_motor_runs_out_of_authority():
