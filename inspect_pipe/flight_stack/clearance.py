@@ -6,7 +6,7 @@ from __future__ import annotations
 from inspect_pipe.flight_stack.messages import Clearance, EstimationMode, Measurements, RangeReading, StateEstimate
 from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory, oblique_wall
 from inspect_pipe.flight_stack.params import EstimationParams
-from inspect_pipe.flight_stack.sensor_health import ReadingLedger, fresh_range
+from inspect_pipe.flight_stack.sensor_health import SONAR_LATENCY_S, ReadingLedger, fresh_range
 
 __all__ = ["Clearances"]
 
@@ -29,7 +29,7 @@ class Clearances:
         def at_now(r: RangeReading | None, closing_m_s: float) -> float | None:
             if not fresh_range(r, now, p.sonar_timeout_s, p.sonar_max_range_m):
                 return None
-            age = now - r.stamp_s + p.sonar_latency_s  # type: ignore[union-attr]
+            age = now - r.stamp_s + SONAR_LATENCY_S  # type: ignore[union-attr]
             return r.range_m - closing_m_s * age  # type: ignore[union-attr,operator]
 
         def stale(r: RangeReading | None) -> bool:

@@ -165,7 +165,7 @@ class FlightController:
         self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
         vlim = p.vertical_trim_limit_m_s2
         self.pid_vz = PID(
-            p.vz_kp_1_s, p.speed_ki_1_s2, integral_limit=vlim,
+            p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
             unwind_factor=p.vz_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
         )
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)

@@ -26,7 +26,9 @@ from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
 from inspect_pipe.flight_stack.range_rates import SonarRangeRates
 from inspect_pipe.flight_stack.sensor_health import (
     SONAR_FLOOR_M,
+    SONAR_LATENCY_S,
     TOF_FLOOR_M,
+    TOF_LATENCY_S,
     ReadingLedger,
     SensorHealth,
     SensorStatus,
@@ -241,7 +243,7 @@ class MAVStateUpdater:
         self.front.propagate(now, rate=-vx)
         fs = m.front_sonar
         if fs is not None and fs.range_m is not None and self._ledger.new("front_range", fs.stamp_s):
-            self.front.correct(fs.range_m, fs.stamp_s - p.sonar_latency_s)
+            self.front.correct(fs.range_m, fs.stamp_s - SONAR_LATENCY_S)
 
     def _horizontal_speeds(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus,
                            bflow, fflow) -> tuple[float, float]:
@@ -314,11 +316,11 @@ class MAVStateUpdater:
         p = self.p
         source, latency, height_floor = None, 0.0, None
         if feeds.height is Source.BOTTOM_SONAR:
-            source, latency, height_floor = m.bottom_sonar, p.sonar_latency_s, SONAR_FLOOR_M
+            source, latency, height_floor = m.bottom_sonar, SONAR_LATENCY_S, SONAR_FLOOR_M
             if status.bottom_tof and source.range_m < p.sonar_clamp_zone_m:  # type: ignore[union-attr,operator]
-                source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
+                source, latency, height_floor = m.bottom_tof, TOF_LATENCY_S, TOF_FLOOR_M
         elif feeds.height is Source.TERARANGER:
-            source, latency, height_floor = m.bottom_tof, p.tof_latency_s, TOF_FLOOR_M
+            source, latency, height_floor = m.bottom_tof, TOF_LATENCY_S, TOF_FLOOR_M
         if source is None and vz_flow is None:
             self.height.propagate(now, rate=climb)
         else:

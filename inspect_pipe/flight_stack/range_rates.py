@@ -16,7 +16,7 @@ from collections import deque
 from inspect_pipe.flight_stack.messages import Measurements
 from inspect_pipe.flight_stack.observers import RangeSlope, SpeedObserver
 from inspect_pipe.flight_stack.params import EstimationParams
-from inspect_pipe.flight_stack.sensor_health import ReadingLedger
+from inspect_pipe.flight_stack.sensor_health import SONAR_LATENCY_S, ReadingLedger
 
 __all__ = ["SonarRangeRates"]
 
@@ -56,7 +56,7 @@ class SonarRangeRates:
     def note_speed(self, now: float, vx: float, vy: float) -> None:
         hist = self._v_hist
         hist.append((now, vx, vy))
-        while now - hist[0][0] > self.window_s + self.p.sonar_latency_s + 0.5:
+        while now - hist[0][0] > self.window_s + SONAR_LATENCY_S + 0.5:
             hist.popleft()
 
     def turning(self, now: float, yaw: float | None) -> bool:
@@ -89,7 +89,7 @@ class SonarRangeRates:
                 rate, t_mid = self.rates[name], self.slopes[name].t_mid
                 if rate is None or t_mid is None or not self.ledger.new(f"{name}_slope", t_mid):
                     continue
-                then = self._speed_at(t_mid - p.sonar_latency_s)
+                then = self._speed_at(t_mid - SONAR_LATENCY_S)
                 found.append((sign * rate, None if then is None else then[axis]))
             # One slope's own noise is half of speed_noise_m_s (doubled there for the overlap
             # of consecutive slopes); the difference of two sensors' has sqrt(2) times that.

@@ -22,8 +22,12 @@ from inspect_pipe.flight_stack.params import EstimationParams
 # touchdown (campaign seed 11 e190); so was a 0.35 m TeraRanger threshold 0.27 m above the floor.
 SONAR_FLOOR_M = 0.32
 TOF_FLOOR_M = 0.25
+# Reading delays, sample to delivery (datasheet figures, as the simulator delivers them; docs/flight.md,
+# Simulator): the HRLV-EZ4's 10 Hz ranging and the TeraRanger One's. Readings are back-dated by them.
+SONAR_LATENCY_S = 0.05
+TOF_LATENCY_S = 0.01
 
-__all__ = ["SONAR_FLOOR_M", "TOF_FLOOR_M", "ReadingLedger", "SensorHealth", "SensorStatus", "fresh_range"]
+__all__ = ["SONAR_FLOOR_M", "SONAR_LATENCY_S", "TOF_FLOOR_M", "TOF_LATENCY_S", "ReadingLedger", "SensorHealth", "SensorStatus", "fresh_range"]
 
 
 @dataclass(frozen=True, slots=True)
