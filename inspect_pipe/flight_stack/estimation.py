@@ -274,7 +274,7 @@ class MAVStateUpdater:
             clamped = bs is not None and bs.range_m is not None and bs.range_m < p.sonar_clamp_zone_m
             if self._ledger.new("bottom_flow", bflow.stamp_s):
                 scale = min(1.0, tof.range_m / bs.range_m) if clamped and status.bottom_tof else 1.0  # type: ignore[union-attr,operator]
-                fnoise = self._flow_noise(bs.range_m * scale)  # type: ignore[union-attr,operator]
+                fnoise = self._flow_noise(bs.range_m * scale, bflow.quality)  # type: ignore[union-attr,operator]
                 ox.correct(bflow.vx_m_s * scale, fnoise, learn_bias=not clamped)
                 oy.correct(bflow.vy_m_s * scale, fnoise, learn_bias=not clamped)
         elif feeds.vx is Source.FRONT_RANGE_RATE:
@@ -285,7 +285,7 @@ class MAVStateUpdater:
             # 0.77 m/s). While turning, vx is carried on with the IMU alone.
             self.rates.correct(now, self._yaw, self.obs, axes=(0,))
             if self._ledger.new("front_flow", fflow.stamp_s):
-                oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m))  # type: ignore[union-attr,arg-type]
+                oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m, fflow.quality))  # type: ignore[union-attr,arg-type]
         else:
             self.rates.correct(now, self._yaw, self.obs)
         return ox.v, oy.v
@@ -348,7 +348,7 @@ class MAVStateUpdater:
         slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent)."""
         oz, noise = self.obs[2], self.p.speed_noise_m_s
         if vz_flow is not None:
-            oz.correct(vz_flow, self._flow_noise(m.front_sonar.range_m))  # type: ignore[union-attr,arg-type]
+            oz.correct(vz_flow, self._flow_noise(m.front_sonar.range_m, m.front_flow.quality))  # type: ignore[union-attr,arg-type]
         elif feeds.vz in (Source.HEIGHT_RATE, Source.HEIGHT_RATE_AND_VAL):
             oz.correct(self.height.rate_m_s, noise, learn_bias=False)
         if feeds.vz is Source.HEIGHT_RATE_AND_VAL:
@@ -358,7 +358,7 @@ class MAVStateUpdater:
             return oz.v + climb
         return vz_flow if vz_flow is not None else self.height.rate_m_s
 
-    def _flow_noise(self, range_m: float) -> float:
+    def _flow_noise(self, range_m: float, quality: int) -> float:
         """The speed noise of a PX4Flow reading: its angular noise times the range it sees (it scales
         its angular flow by that range; PX4's EKF2 weighs flow in rad/s), never below a range
         rate's. Taken with one speed noise whatever the range, the front flow 4.9 m from a wall
@@ -366,9 +366,16 @@ class MAVStateUpdater:
         began moved the vertical bias by 0.044 m/s^2: the alarm descent that followed ran at 0.44
         m/s instead of 0.2 into a box's edge (campaign seed 287 e1354). Without the floor, the flow
         at 1 m counted as 0.05 m/s: the vehicle's tilt jittered 4 % more over Fig. 7's passes and
-        the report bench's register lost corrosion IoU (0.713 -> 0.629), so nearer than 2 m a
-        reading counts as it always did."""
-        return max(self.p.speed_noise_m_s, self.p.flow_noise_rad_s * range_m)
+        the report bench's register lost corrosion IoU (0.713 -> 0.629), so near the wall a
+        reading counts as a range rate does. The angular noise follows the reading's quality as
+        PX4's EKF2 takes it (``EKF2_OF_N_MIN`` at 255 to ``EKF2_OF_N_MAX`` at ``EKF2_OF_QMIN``,
+        linearly): on low texture the quality wanders about the threshold, and with one noise for
+        all and a threshold of 80 the flow came and went at random (seed 291 e1739)."""
+        p = self.p
+        span = 255 - p.flow_min_quality
+        w = min(1.0, max(0.0, (quality - p.flow_min_quality) / span)) if span > 0 else 1.0
+        angular = p.flow_noise_rad_s * w + p.flow_noise_worst_rad_s * (1.0 - w)
+        return max(p.speed_noise_m_s, angular * range_m)
 
     def _flow_to_heading(self, roll: float, pitch: float, bflow, fflow):
         """The PX4Flow units measure in the body frame; the estimate is in the heading frame.

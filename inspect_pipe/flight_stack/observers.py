@@ -104,28 +104,42 @@ class SpeedObserver:
     ``RESTART_AFTER`` measurements refused in a row restart the speed at the last of them.
 
     ``accel_noise`` (m/s^2/sqrt(Hz)) and ``bias_walk`` (m/s^2/sqrt(s)) are the process noise
-    densities; the per-measurement noise comes with each :meth:`correct`.
+    densities; the per-measurement noise comes with each :meth:`correct`. The IMU's own white
+    noise, measured in flight (half the running mean square of consecutive differences of its
+    acceleration over ``NOISE_WINDOW_S``, as the disturbance observers measure theirs), is added
+    to ``accel_noise``: rotor vibration raises it 10x and more (a vibration fault of rate 0.44 is
+    1.3 m/s^2 a tick), and a filter that kept trusting the IMU as in calm air followed the 10 Hz
+    range rates 0.3 m/s late in mode 2, where the link-loss hold rocked the vehicle 0.32 m off
+    its point (campaign seed 283 e1854).
     """
 
     V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
     # measurements refused in a row: half a second of the 10 Hz flows and sonar range rates, which are taken once
     # a reading; 0.1 s of the height's rate, which is offered every 50 Hz tick (modes 0 and -1)
     RESTART_AFTER = 5
+    NOISE_WINDOW_S = 1.0  # the IMU noise's running mean square (as control.AccelObserver's)
 
-    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused")
+    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused", "noise_ms", "_last_accel")
 
     def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
         self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
         self.v = self.b = 0.0
         self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
         self.refused = 0
+        self.noise_ms = 0.0  # the IMU's measured white-noise variance along this axis, (m/s^2)^2
+        self._last_accel: float | None = None
 
     def predict(self, accel: float, dt: float) -> None:
         if dt <= 0.0:
             return
+        if self._last_accel is not None:
+            step = accel - self._last_accel
+            self.noise_ms += (0.5 * step * step - self.noise_ms) * min(1.0, dt / self.NOISE_WINDOW_S)
+        self._last_accel = accel
         self.v += (accel - self.b) * dt
         p00, p01, p11 = self.p00, self.p01, self.p11
-        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + self.q_a * dt
+        # a white noise of variance noise_ms per sample of length dt: density noise_ms * dt
+        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + (self.q_a + self.noise_ms * dt) * dt
         self.p01 = p01 - dt * p11
         self.p11 = p11 + self.q_b * dt
 
