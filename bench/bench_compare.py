@@ -1,11 +1,13 @@
 """Change since the last survey (issue 20, item 5): how small a change `compare` tells from noise.
 
-Demo wall (seed 5) flown twice (flight seeds 11 and 12): every change reported is a false one, and
-the area differences of the matched defects are the noise. The same wall edited
-(``edit_demo_wall``: 3 corrosion patches appeared, 2 grew 1.4x in size) and flown with seed 12:
-every appeared or grown defect should be reported new or grown within 10 cm.
+Demo wall (seed 5) flown three times (flight seeds 11, 12 and 13), compared pair by pair: every
+change reported is a false one, and the area differences of the matched defects are the noise (one
+pair is one draw of the flight-to-flight spread; three give a rate). The same wall edited
+(``edit_demo_wall``: 3 corrosion patches appeared, 2 grew 1.4x in size) and flown with seeds 12 and
+13, each compared with flight 11: every appeared or grown defect should be reported new or grown
+within 10 cm.
 
-    python -m bench --only compare            (3 flights, about 2 min each on 2 free cores)
+    python -m bench --only compare            (5 flights, about 20 s each on 2 free cores)
 """
 
 from __future__ import annotations
@@ -58,30 +60,43 @@ def run(data: Path) -> str:
     with tempfile.TemporaryDirectory(prefix="bench_compare_") as tmp:
         tmp = Path(tmp)
         wall = build_demo_wall(tmp / "wall", data, seed=5)
-        fly(data, tmp / "a", 5, 11, wall=wall)
-        fly(data, tmp / "b", 5, 12, wall=wall)
+        for s in SAME_FLIGHTS:
+            fly(data, tmp / f"same{s}", 5, s, wall=wall)
         edited, truth = edit_demo_wall(wall, tmp / "wall_edited", data)
-        fly(data, tmp / "c", 5, 12, wall=edited)
-        same = measure(tmp / "a", tmp / "b")
-        changed = measure(tmp / "a", tmp / "c", [t.to_json() for t in truth])
+        for s in EDITED_FLIGHTS:
+            fly(data, tmp / f"edited{s}", 5, s, wall=edited)
+        first = SAME_FLIGHTS[0]
+        same = [(f"same wall, flights {a} / {b}", measure(tmp / f"same{a}", tmp / f"same{b}"))
+                for i, a in enumerate(SAME_FLIGHTS) for b in SAME_FLIGHTS[i + 1:]]
+        changed = [(f"edited wall, flights {first} / {s}", measure(tmp / f"same{first}", tmp / f"edited{s}", [t.to_json() for t in truth]))
+                   for s in EDITED_FLIGHTS]
     return section(same, changed, time.monotonic() - t0)
 
 
-def section(same: dict, changed: dict, seconds: float) -> str:
+SAME_FLIGHTS = (11, 12, 13)  # flight seeds of the unchanged wall; every pair is compared
+EDITED_FLIGHTS = (12, 13)  # flight seeds of the edited wall, each compared with the first unchanged flight
+
+
+def section(same: list[tuple[str, dict]], changed: list[tuple[str, dict]], seconds: float) -> str:
     lines = ["## Change since the last survey (`bench_compare.py`)\n",
-             "Demo wall (seed 5), flights with seeds 11 and 12; the edited wall (3 corrosion patches appeared, 2 grew 1.4x "
-             "linear) flown with seed 12 and compared with flight 11.\n",
+             f"Demo wall (seed 5) flown with seeds {', '.join(map(str, SAME_FLIGHTS))}, every pair compared; the edited wall "
+             f"(3 corrosion patches appeared, 2 grew 1.4x linear) flown with seeds {', '.join(map(str, EDITED_FLIGHTS))}, each "
+             f"compared with flight {SAME_FLIGHTS[0]}.\n",
              "| pair | registration (inliers, shift) | new / grown / shrunk / gone / unchanged | below noise | false changes | "
              "largest weighted-area difference called unchanged |",
              "|---|---|---|---:|---:|---|"]
-    for name, r in (("same wall, two flights", same), ("edited wall", changed)):
+    for name, r in same + changed:
         c = r["counts"]
         lines.append(f"| {name} | {r['registration']['inliers']}, {100 * r['registration']['shift_m']:.1f} cm | "
                      f"{c['new']} / {c['grown']} / {c['shrunk']} / {c['gone']} / {c['unchanged']} | {r['below_noise']} | {r['false_changes']} | "
                      f"{r['noise_abs_max_m2'] * 1e4:.1f} cm² ({100 * r['noise_rel_max']:.0f} %) |")
     lines.append("")
-    lines.append("True changes on the edited wall: " + "; ".join(
-        f"{t} {k}: " + (f"reported {s[0]} at {s[1]} cm" if s else "missed") for t, k, s in changed.get("true_changes", [])) + ".")
+    false_same = sum(r["false_changes"] for _, r in same)
+    lines.append(f"Unchanged wall: {false_same} false change(s) over {len(same)} pairs "
+                 f"({sum(r['false_changes'] == 0 for _, r in same)} of {len(same)} pairs with none).")
+    for name, r in changed:
+        lines.append(f"\nTrue changes, {name}: " + "; ".join(
+            f"{t} {k}: " + (f"reported {s[0]} at {s[1]} cm" if s else "missed") for t, k, s in r.get("true_changes", [])) + ".")
     lines.append(f"\nTotal {seconds:.0f} s.\n")
     return "\n".join(lines)
 
