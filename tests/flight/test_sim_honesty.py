@@ -111,7 +111,8 @@ def test_flow_quality_falls_on_low_texture():
     good = [x.bottom_flow.quality for x in _still(0.0)[50:] if x.bottom_flow]
     poor = [x.bottom_flow.quality for x in _still(0.0, SensorFaults(low_texture={SensorName.BOTTOM_FLOW: 0.8}))[50:] if x.bottom_flow]
     assert statistics.fmean(good) > 150
-    assert statistics.fmean(poor) < 80  # below the stack's flow_min_quality
+    # about the stack's flow_min_quality (40): half the readings refused, the rest weighed as noisy
+    assert 25 < statistics.fmean(poor) < 60
 
 
 def test_sonar_misses_echoes_at_shallow_incidence():
