@@ -128,6 +128,22 @@ def test_a_jolt_with_no_height_measured_is_the_floor_only_once_a_descent_could_r
     assert m.touchdown_s == 2.3
 
 
+def test_a_jolt_with_no_height_measured_that_was_not_the_floor_is_undone_by_the_fall_it_starts():
+    # GIVEN a touchdown taken from a jolt in mode -2 past the time bound (seed 299 e182: the
+    # vibration fault's first spikes 1.2 s after every range sensor was lost at 1.47 m)
+    m = FlightMachine()
+    m.state = FlightState.FLYING
+    _run(m, 1.0, _est(1.47))
+    assert _run(m, 2.2, _est(1.47, mode=EstimationMode.ALARM_NONE), impact=True) is FlightState.LANDING
+    # WHEN the carried vertical speed says the vehicle stays put as the ramp begins (a true touchdown)
+    assert _run(m, 2.3, _est(1.47, vz=0.2, mode=EstimationMode.ALARM_NONE)) is FlightState.LANDING
+    assert m.touchdown_s == 2.2
+    # THEN the ramp goes on; but once it descends faster than the machine ever commands, it is
+    # falling, not down: the touchdown is undone and the vehicle flies on
+    assert _run(m, 2.4, _est(1.4, vz=-0.5, mode=EstimationMode.ALARM_NONE)) is FlightState.FLYING
+    assert m.touchdown_s is None and m.thrust_cap(2.4, 0.45) == 1.0
+
+
 def test_drag_trim_comes_from_the_command_and_vanishes_with_it():
     # GIVEN a vehicle tracking 0.5 m/s exactly: the tilt is the drag feed-forward, not integral
     p = ControlParams()
