@@ -8,6 +8,7 @@ import enum
 import math
 
 from inspect_pipe.flight_stack.messages import AttitudeSetpoint, SpeedCommand, StateEstimate
+from inspect_pipe.flight_stack.observers import WhiteNoiseMeter
 from inspect_pipe.flight_stack.params import BehaviorParams, ControlParams
 
 __all__ = ["FlightController", "PID", "VerticalMode"]
@@ -72,8 +73,6 @@ class AccelObserver:
     into a pillar's corner (safety campaign, seed 2). What it does not make up (the IMU's bias,
     beyond ``limit``) is left to the integrators."""
 
-    noise_window_s = 1.0  # the IMU noise's running mean square, as ImpactDetector's (50 ticks)
-
     def __init__(self, *, tau_s: float, lag_s: float, limit: float) -> None:
         self.tau_s, self.lag_s, self.limit = tau_s, lag_s, limit
         self.value = 0.0  # m/s^2 missing from the nominal response
@@ -84,14 +83,13 @@ class AccelObserver:
         # 0): uncorrected, the observer would "make up" the bias and push the vehicle with it.
         self.bias = 0.0
         self._bias_n = 0
-        # The IMU's noise as this observer sees it: half the mean square of consecutive
-        # differences of its surprise (a white noise's variance; a gust's smooth push adds little)
-        self.noise_ms = 0.0
-        self._last_surprise: float | None = None
+        # The IMU's noise as this observer sees it: the white noise of its surprise over 1 s, as
+        # ImpactDetector's window (50 ticks; a gust's smooth push adds little)
+        self.noise = WhiteNoiseMeter(window_s=1.0)
 
     def reset(self) -> None:
         self.value, self._expected, self._applied, self._nominal = 0.0, None, 0.0, 0.0
-        self._last_surprise = None
+        self.noise.forget_last()
 
     def calibrate(self, measured: float | None) -> None:
         """One IMU reading taken at rest (landed): running mean of the bias, over the last ~100."""
@@ -116,10 +114,7 @@ class AccelObserver:
         self._expected = self._applied if prev is None else prev + (self._applied - prev) * min(1.0, dt / (self.lag_s + dt))
         if measured is not None and prev is not None:
             surprise = self._expected + nominal - (measured - self.bias)
-            if self._last_surprise is not None:
-                step = surprise - self._last_surprise
-                self.noise_ms += (0.5 * step * step - self.noise_ms) * min(1.0, dt / self.noise_window_s)
-            self._last_surprise = surprise
+            self.noise.add(surprise, dt)
             d = self.value + (surprise - self.value) * min(1.0, dt / self.tau_s)
             self.value = max(-self.limit, min(self.limit, d))
         return self.value
@@ -129,7 +124,7 @@ class AccelObserver:
         the first-order low-pass of ``tau_s``)."""
         if self.tau_s <= 0.0 or dt <= 0.0:
             return 0.0
-        return math.sqrt(self.noise_ms * dt / (2.0 * self.tau_s))
+        return math.sqrt(self.noise.variance * dt / (2.0 * self.tau_s))
 
     def surprise(self, measured: float) -> float:
         """How much more acceleration the IMU felt than the last set-point explains for this

@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-__all__ = ["HeightEstimator", "RangeObserver", "RangeSlope", "SpeedObserver", "StuckCheck"]
+__all__ = ["HeightEstimator", "RangeObserver", "RangeSlope", "SpeedObserver", "StuckCheck", "WhiteNoiseMeter"]
 
 
 class RangeObserver:
@@ -86,6 +86,30 @@ class RangeObserver:
         self.bias = max(-self.max_bias, min(self.max_bias, self.bias - self.k3 * ts * r))
 
 
+class WhiteNoiseMeter:
+    """The variance of a signal's white noise, measured as it runs: half the running mean square of
+    consecutive differences over ``window_s`` (a white noise's variance; a smooth change, a gust or a
+    manoeuvre, adds little). The IMU's noise as the speed observers and the disturbance observers
+    (``control.AccelObserver``) see it."""
+
+    __slots__ = ("window_s", "variance", "_last")
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        self.window_s = window_s
+        self.variance = 0.0
+        self._last: float | None = None
+
+    def add(self, x: float, dt: float) -> None:
+        if self._last is not None:
+            step = x - self._last
+            self.variance += (0.5 * step * step - self.variance) * min(1.0, dt / self.window_s)
+        self._last = x
+
+    def forget_last(self) -> None:
+        """The next sample starts a new run of differences (the variance is kept)."""
+        self._last = None
+
+
 class SpeedObserver:
     """One axis's speed and the accelerometer's bias along it: a two-state Kalman filter.
 
@@ -106,7 +130,7 @@ class SpeedObserver:
     ``accel_noise`` (m/s^2/sqrt(Hz)) and ``bias_walk`` (m/s^2/sqrt(s)) are the process noise
     densities; the per-measurement noise comes with each :meth:`correct`. The IMU's own white
     noise, measured in flight (half the running mean square of consecutive differences of its
-    acceleration over ``NOISE_WINDOW_S``, as the disturbance observers measure theirs), is added
+    acceleration over 1 s, :class:`WhiteNoiseMeter`, as the disturbance observers measure theirs), is added
     to ``accel_noise``: rotor vibration raises it 10x and more (a vibration fault of rate 0.44 is
     1.3 m/s^2 a tick), and a filter that kept trusting the IMU as in calm air followed the 10 Hz
     range rates 0.3 m/s late in mode 2, where the link-loss hold rocked the vehicle 0.32 m off
@@ -117,29 +141,24 @@ class SpeedObserver:
     # measurements refused in a row: half a second of the 10 Hz flows and sonar range rates, which are taken once
     # a reading; 0.1 s of the height's rate, which is offered every 50 Hz tick (modes 0 and -1)
     RESTART_AFTER = 5
-    NOISE_WINDOW_S = 1.0  # the IMU noise's running mean square (as control.AccelObserver's)
 
-    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused", "noise_ms", "_last_accel")
+    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused", "imu_noise")
 
     def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
         self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
         self.v = self.b = 0.0
         self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
         self.refused = 0
-        self.noise_ms = 0.0  # the IMU's measured white-noise variance along this axis, (m/s^2)^2
-        self._last_accel: float | None = None
+        self.imu_noise = WhiteNoiseMeter()  # the IMU's white-noise variance along this axis, (m/s^2)^2
 
     def predict(self, accel: float, dt: float) -> None:
         if dt <= 0.0:
             return
-        if self._last_accel is not None:
-            step = accel - self._last_accel
-            self.noise_ms += (0.5 * step * step - self.noise_ms) * min(1.0, dt / self.NOISE_WINDOW_S)
-        self._last_accel = accel
+        self.imu_noise.add(accel, dt)
         self.v += (accel - self.b) * dt
         p00, p01, p11 = self.p00, self.p01, self.p11
-        # a white noise of variance noise_ms per sample of length dt: density noise_ms * dt
-        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + (self.q_a + self.noise_ms * dt) * dt
+        # a white noise of variance v per sample of length dt: density v * dt
+        self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + (self.q_a + self.imu_noise.variance * dt) * dt
         self.p01 = p01 - dt * p11
         self.p11 = p11 + self.q_b * dt
 

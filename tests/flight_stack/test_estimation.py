@@ -580,7 +580,7 @@ def test_a_vibrating_imu_is_trusted_less_and_the_range_rate_more():
     for _ in range(200):
         obs.predict(rng.gauss(0.0, 1.3), 0.02)
     # THEN the observer measures the IMU's noise (its variance within 25 %) ...
-    assert obs.noise_ms == pytest.approx(1.3**2, rel=0.25)
+    assert obs.imu_noise.variance == pytest.approx(1.3**2, rel=0.25)
     # ... and with it follows the measured speed closer where the IMU is worse: mean error over 20
     # runs 0.094 m/s calm, 0.061 vibrating (with the calm-air process noise under vibration, 0.107)
     assert vibrating < 0.8 * calm
