@@ -129,3 +129,80 @@ def test_a_folder_mosaic_without_wall_coordinates_is_refused(surveys, tmp_path):
     write_json(folder.mosaic_dir / "mosaic.json", doc)
     r = runner.invoke(app, ["compare", str(old.root), str(folder.root), "-o", str(tmp_path / "out")])
     assert r.exit_code == 2 and "no wall coordinates" in r.output and not (tmp_path / "out").exists()
+
+
+def _flown_again(src: RunStore, root: Path, edit) -> RunStore:
+    """The same wall flown again, 1.2 cm / 0.8 cm off in odometry; ``edit(mosaic, corr_mask, corr_prob)``
+    changes what that flight saw (in place) before its register is drawn."""
+    shutil.copytree(src.root, root, ignore=shutil.ignore_patterns("report"))
+    store = RunStore(root)
+    doc = json.loads((store.mosaic_dir / "mosaic.json").read_text())
+    W = np.asarray(doc["wall_from_mosaic"], float)
+    W[0, 2] += 0.012
+    W[1, 2] -= 0.008
+    doc["wall_from_mosaic"] = W.tolist()
+    write_json(store.mosaic_dir / "mosaic.json", doc)
+    mosaic = cv2.imread(str(store.mosaic_dir / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    corr = store.load_class_map("mosaic", "corrosion", "mask")
+    prob = store.load_class_map("mosaic", "corrosion", "prob")
+    edit(mosaic, corr, prob)
+    cv2.imwrite(str(store.mosaic_dir / "mosaic.png"), mosaic)
+    store.save_class_map("mosaic", "corrosion", "mask", corr)
+    store.save_class_map("mosaic", "corrosion", "prob", prob)
+    _register(store)
+    return store
+
+
+def _compare(old: RunStore, new: RunStore, out: Path) -> dict:
+    r = runner.invoke(app, ["compare", str(old.root), str(new.root), "-o", str(out), "--no-pdf"])
+    assert r.exit_code == 0, r.output
+    return json.loads((out / "changes.json").read_text())
+
+
+@pytest.mark.parametrize("prob_there, status", [(200, "unchanged"), (10, "gone")])
+def test_a_patch_one_flight_leaves_out_is_gone_only_where_its_map_no_longer_shows_it(surveys, tmp_path, prob_there, status):
+    # GIVEN a second flight whose detection leaves the 200 cm² corrosion patch out of its register:
+    # its map still shows it a little below the operating point (200 against 240: a faint patch
+    # flown again, the detector's flight-to-flight spread), or no longer at all (10: repainted)
+    old, _ = surveys
+    x, y, w, h = 100, 60, 40, 20
+
+    def edit(mosaic, corr, prob):
+        corr[y:y + h, x:x + w] = 0
+        prob[y:y + h, x:x + w] = prob_there
+
+    new = _flown_again(old, tmp_path / "new", edit)
+    # WHEN the two surveys are compared
+    doc = _compare(old, new, tmp_path / "out")
+    corr = [e for e in doc["entries"] if e["class"] == "corrosion"]
+    # THEN it is gone only when the new map no longer shows it; else unchanged, and the note says why
+    assert [e["status"] for e in corr] == [status], corr
+    if status == "unchanged":
+        assert corr[0]["new_id"] is None and "below the register's limits" in corr[0]["note"]
+        assert corr[0]["prob_area_new_m2"] == pytest.approx(200 / 240 * corr[0]["prob_area_old_m2"], rel=0.1)
+    assert doc["counts"]["gone"] == (status == "gone")
+
+
+@pytest.mark.parametrize("cut_px, expect", [(120, "unchanged"), (95, "not compared")])
+def test_a_defect_at_the_edge_of_one_surveys_coverage_is_compared_on_the_wall_both_imaged(surveys, tmp_path, cut_px, expect):
+    # GIVEN a second flight with a gap in its coverage from mosaic column ``cut_px`` to 200 (rows 30-110):
+    # the 40 px wide corrosion patch (columns 100-139, rows 60-79) half in the gap, or all but its first 5 px
+    old, _ = surveys
+
+    def edit(mosaic, corr, prob):
+        for m in (mosaic[:, :, 3], corr, prob):
+            m[30:110, cut_px:200] = 0
+
+    new = _flown_again(old, tmp_path / "new", edit)
+    doc = _compare(old, new, tmp_path / "out")
+    corr = [e for e in doc["entries"] if e["class"] == "corrosion"]
+    if expect == "unchanged":
+        # THEN half the patch is not "shrunk": its weighted areas are summed where both surveys imaged the wall
+        assert [e["status"] for e in corr] == ["unchanged"], corr
+        assert corr[0]["area_new_m2"] == pytest.approx(corr[0]["area_old_m2"] / 2, rel=0.2)  # the register's own area halved
+        assert corr[0]["prob_area_new_m2"] == pytest.approx(corr[0]["prob_area_old_m2"], rel=0.1)
+    else:
+        # THEN a patch the new survey did not image is neither gone nor unchanged: not compared, and said so
+        assert corr == [] and doc["counts"]["gone"] == 0
+        (nc,) = [e for e in doc["not_compared"] if e["class"] == "corrosion"]
+        assert nc["old_id"] and "not compared" in nc["note"] and "both surveys imaged" in nc["note"]
