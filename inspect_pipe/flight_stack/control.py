@@ -20,21 +20,15 @@ class PID:
     """PID with a clamped integrator and optional measured derivative. Time step passed in."""
 
     def __init__(
-        self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf,
-        unwind_factor: float = 1.0, unwind_threshold: float = math.inf, integrate_band: float = math.inf,
+        self, kp: float, ki: float, kd: float = 0.0, *, integral_limit: float = math.inf, integrate_band: float = math.inf,
     ) -> None:
         self.kp, self.ki, self.kd = kp, ki, kd
         self.integral_limit = integral_limit
         # Integral separation: errors beyond ``integrate_band`` are transients (a braking
-        # manoeuvre), not a missing trim; integrated, they left a trim behind that crept the
+        # manoeuvre the reference model has not followed, a speed estimate restarted at a new
+        # measurement), not a missing trim; integrated, they left a trim behind that crept the
         # vehicle back from the wall after a stop.
         self.integrate_band = integrate_band
-        # Fast unwinding: an integral that pushes against a large error (|error| > threshold) is
-        # left over from a disturbance that has gone, e.g. the thrust a battery sag needed when it
-        # ends at touchdown; it unwinds ``unwind_factor`` times faster. Small errors integrate at
-        # ki both ways. (On the XY speeds, where the flow's noise crosses any such threshold, it
-        # kept the integrators from holding a trim: 0.24 m of drift in a Fig. 5 hover.)
-        self.unwind_factor, self.unwind_threshold = unwind_factor, unwind_threshold
         self.integral = 0.0
         self._prev_error: float | None = None
 
@@ -43,18 +37,17 @@ class PID:
         self._prev_error = None
 
     def update(
-        self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False, unwind: bool = True,
+        self, error: float, dt: float, *, rate: float | None = None, freeze: bool = False,
         integrate: float | None = None,
     ) -> float:
         """``rate``: d(error)/dt when measured directly (avoids differentiating noise);
-        ``unwind``: fast unwinding allowed this step; ``integrate``: the error the integrator
-        takes, when not ``error`` (a reference model's tracking error)."""
+        ``integrate``: the error the integrator takes, when not ``error`` (a reference model's
+        tracking error: a command step is the P term's to follow, so the integrator does not wind
+        up on a step; the fast unwinding this PID had before the reference models is gone with it,
+        docs/flight.md)."""
         ie = error if integrate is None else integrate
         if not freeze and dt > 0.0 and abs(ie) <= self.integrate_band:
-            ki = self.ki
-            if unwind and self.integral * ie < 0.0 and abs(ie) > self.unwind_threshold:
-                ki *= self.unwind_factor
-            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + ki * ie * dt))
+            self.integral = max(-self.integral_limit, min(self.integral_limit, self.integral + self.ki * ie * dt))
         if rate is None:
             rate = 0.0 if self._prev_error is None or dt <= 0.0 else (error - self._prev_error) / dt
         self._prev_error = error
@@ -159,10 +152,7 @@ class FlightController:
         self.pid_vx = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
         self.pid_vy = PID(p.speed_kp_1_s, p.speed_ki_1_s2, **xy)
         vlim = p.vertical_trim_limit_m_s2
-        self.pid_vz = PID(
-            p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim,
-            unwind_factor=p.vz_unwind_factor, unwind_threshold=p.vz_unwind_threshold_m_s,
-        )
+        self.pid_vz = PID(p.vz_kp_1_s, p.vz_ki_1_s2, integral_limit=vlim)
         self.pid_height = PID(p.height_kp_1_s2, p.height_ki_1_s3, p.height_kd_1_s, integral_limit=vlim)
         self.height_ref_m: float | None = None
         self.vertical_mode = VerticalMode.SPEED
@@ -218,7 +208,6 @@ class FlightController:
         freeze_xy_integrators: bool = False,
         relax_xy_integrators: bool = False,
         thrust_cap_frac: float = 1.0,
-        unwind_vertical: bool = False,
         accel_measured: tuple[float, float, float] | None = None,
     ) -> AttitudeSetpoint:
         """``accel_measured``: the IMU's acceleration (heading frame) since the last set-point,
@@ -298,7 +287,7 @@ class FlightController:
             if self._vz_ref is None:
                 self._vz_ref = est.vz_m_s
             self._vz_ref += (cmd.vz_m_s - self._vz_ref) * min(1.0, p.vz_kp_1_s * dt)
-            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators, unwind=unwind_vertical,
+            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators,
                                     integrate=self._vz_ref - est.vz_m_s)
             trim = self.pid_vz.integral
         self.vertical_mode = mode

@@ -160,10 +160,6 @@ class OnboardStack:
             setpoint = ctrl.update(
                 cmd, est, dt, allow_height_hold=False, freeze_integrators=alarm,
                 thrust_cap_frac=machine.thrust_cap(now_s, self._ramp_from_thrust(p.control.hover_thrust_frac)),
-                # A vehicle rising while told to descend carries trim from a disturbance that
-                # has gone (a battery sag ending at touchdown): shed it fast, or it hops off the
-                # floor and the next touchdown is taken at the top of the hop (safety campaign).
-                unwind_vertical=True,
                 # The disturbance observers run until touchdown, not frozen from the first tick of
                 # LANDING: a battery sag that ended mid-landing left the vertical one's +2.7 m/s^2
                 # in the thrust, the vehicle climbed back to 0.7 m, and the ramp began there.

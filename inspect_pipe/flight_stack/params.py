@@ -191,15 +191,9 @@ class ControlParams:
         "observers miss; 5 (from 3, session 28): Fig. 7's lateral passes 9/60 -> 4/60 off 0.20 +- 0.01 m/s on "
         "seeds 301-320, 0/60 on fresh 321-340"
     )
-    vz_unwind_factor: float = param(
-        5.0, 1.0, 10.0, "1", "landing: gain multiplier of the vertical integrator while it unwinds against a "
-        "speed error above vz_unwind_threshold_m_s (the trim a battery sag left behind)"
-    )
-    vz_unwind_threshold_m_s: float = param(
-        0.15, 0.0, 1.0, "m/s", "landing: the vertical integrator unwinds fast against a speed error above this"
-    )
     speed_integrate_band_m_s: float = param(
-        0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only errors within this (integral separation)"
+        0.3, 0.0, 10.0, "m/s", "XY speed PID integrates only deviations from the command's reference model within this "
+        "(integral separation: a stop the model has not followed, a restarted speed estimate)"
     )
     speed_drag_ff_1_s: float = param(
         0.15, 0.0, 2.0, "1/s", "XY feed-forward m/s^2 per commanded m/s (nominal rotor drag / mass)"
