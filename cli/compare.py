@@ -15,7 +15,10 @@ OLD_RUN and NEW_RUN are run directories of `inspect-pipe run` (a mosaic placed o
 register in report/defects.json). The two mosaics are registered on the wall (wall coordinates
 first, SIFT features on a common wall raster to refine), the registers matched (outlines within
 3 cm), and each defect called new, grown, shrunk, unchanged or gone; area changes within the
-noise measured between two flights of an unchanged wall count as unchanged.
+noise measured between flights of unchanged walls count as unchanged. Areas are compared only
+over the wall both surveys imaged; a defect mostly outside it is listed as not compared. An entry
+registered by one survey only is new or gone only where the other survey's detection map no
+longer shows it; a faint patch near the detector's operating point is unchanged, with a note.
 
 OUT gets changes.json (inspect_pipe.changes/1: entries with status, old_id, new_id,
 centroid_wall_m, area_old_m2, area_new_m2), change_map.png, crops/ (old | new side by side),
@@ -45,5 +48,7 @@ def compare(
     c = compare_runs(old_run, new_run)  # every check before anything is written
     written = write_comparison(c, out, pdf=not no_pdf, log=note)
     counts = ", ".join(f"{sum(ch.status == s for ch in c.changes)} {s}" for s in ("new", "grown", "shrunk", "gone", "unchanged"))
+    if c.not_compared:
+        counts += f"; {len(c.not_compared)} not compared (outside the wall both surveys imaged)"
     typer.echo(f"{written['changes']}: {counts}")
     typer.echo(f"{written['html']}" + (f"\n{written['pdf']}" if written.get("pdf") else ""))

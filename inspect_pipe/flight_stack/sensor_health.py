@@ -63,11 +63,11 @@ class SensorHealth:
 
     def __init__(self, params: EstimationParams) -> None:
         p = self.p = params
-        self._stuck = {k: StuckCheck(p.flow_stuck_samples, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")}
+        self._stuck = {k: StuckCheck(p.stuck_samples, p.flow_stuck_imu_dv_m_s) for k in ("bottom", "front")}
         # Horizontal sonars: stuck once the vehicle's own speed along the axis says the range
         # should have changed.
         self._range_stuck = {
-            k: StuckCheck(p.sonar_stuck_samples, p.sonar_stuck_travel_m)
+            k: StuckCheck(p.stuck_samples, p.sonar_stuck_travel_m)
             for k in ("front", "left", "right", "bottom_sonar", "bottom_tof")
         }
         # Per downward range sensor: the vertical speed carried by the IMU alone since its reading

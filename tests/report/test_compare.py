@@ -153,10 +153,10 @@ def _flown_again(src: RunStore, root: Path, edit) -> RunStore:
     return store
 
 
-def _compare(old: RunStore, new: RunStore, out: Path) -> dict:
+def _compare(old: RunStore, new: RunStore, out: Path) -> tuple[dict, str]:
     r = runner.invoke(app, ["compare", str(old.root), str(new.root), "-o", str(out), "--no-pdf"])
     assert r.exit_code == 0, r.output
-    return json.loads((out / "changes.json").read_text())
+    return json.loads((out / "changes.json").read_text()), r.output
 
 
 @pytest.mark.parametrize("prob_there, status", [(200, "unchanged"), (10, "gone")])
@@ -173,7 +173,7 @@ def test_a_patch_one_flight_leaves_out_is_gone_only_where_its_map_no_longer_show
 
     new = _flown_again(old, tmp_path / "new", edit)
     # WHEN the two surveys are compared
-    doc = _compare(old, new, tmp_path / "out")
+    doc, _ = _compare(old, new, tmp_path / "out")
     corr = [e for e in doc["entries"] if e["class"] == "corrosion"]
     # THEN it is gone only when the new map no longer shows it; else unchanged, and the note says why
     assert [e["status"] for e in corr] == [status], corr
@@ -194,8 +194,9 @@ def test_a_defect_at_the_edge_of_one_surveys_coverage_is_compared_on_the_wall_bo
             m[30:110, cut_px:200] = 0
 
     new = _flown_again(old, tmp_path / "new", edit)
-    doc = _compare(old, new, tmp_path / "out")
+    doc, output = _compare(old, new, tmp_path / "out")
     corr = [e for e in doc["entries"] if e["class"] == "corrosion"]
+    assert ("1 not compared" in output) == (expect == "not compared"), output
     if expect == "unchanged":
         # THEN half the patch is not "shrunk": its weighted areas are summed where both surveys imaged the wall
         assert [e["status"] for e in corr] == ["unchanged"], corr

@@ -34,6 +34,6 @@ class EnsureReferenceSurfaceDetection:
             # Only the wall is left: do not let the vehicle drift out of its range.
             margin = ref - 0.5
             if c.front_m > margin:  # type: ignore[operator]
-                return AxisVector(vx_m_s=min(p.reference_gain_1_s * (c.front_m - margin), p.max_speed_m_s))  # type: ignore[operator]
+                return AxisVector(vx_m_s=min(p.position_gain_1_s * (c.front_m - margin), p.max_speed_m_s))  # type: ignore[operator]
             return None
-        return AxisVector(vz_m_s=-min(p.reference_gain_1_s * (height - ref) + 0.1, p.max_vertical_speed_m_s))
+        return AxisVector(vz_m_s=-min(p.position_gain_1_s * (height - ref) + 0.1, p.max_vertical_speed_m_s))

@@ -24,4 +24,4 @@ class LimitMaxHeight:
         ahead = e.altitude_m + max(e.vz_m_s, 0.0) * p.response_time_s
         if ahead < ceiling:
             return None
-        return AxisVector(vz_m_s=-min(p.max_height_gain_1_s * max(e.altitude_m - ceiling, 0.0), p.max_vertical_speed_m_s))
+        return AxisVector(vz_m_s=-min(p.position_gain_1_s * max(e.altitude_m - ceiling, 0.0), p.max_vertical_speed_m_s))
