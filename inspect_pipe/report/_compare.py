@@ -335,31 +335,37 @@ def match_registers(old: SurveyRun, new: SurveyRun, grid: Grid, A: np.ndarray, p
             if old_probs and new_probs and cls in old_probs and cls in new_probs:
                 po = float(old_probs[cls][region].sum()) * grid.m ** 2
                 pn = float(new_probs[cls][region].sum()) * grid.m ** 2
-            status = classify(a_old, a_new, params)
+            status, note = _status(a_old, a_new, po, pn, params, note, "old" if not og else "new")
+            ch = Change(status, cls, [d.id for _, d, _ in og], [d.id for _, d, _ in ng], (float(cu), float(cv)), a_old, a_new, bbox, note, None, po, pn)
             if seen_by_both < params.min_common_fraction:  # one survey did not see it: no change can be told
                 share = "none" if seen_by_both < 0.005 else f"only {100 * seen_by_both:.0f} %"
-                outside.append(Change(status, cls, [d.id for _, d, _ in og], [d.id for _, d, _ in ng], (float(cu), float(cv)), a_old, a_new,
-                                      bbox, f"not compared: {share} of its outline lies on the wall both surveys imaged", None, po, pn))
-                continue
-            if po is not None:
-                weighted = classify(po, pn, params)
-                if status not in ("new", "gone"):
-                    status = weighted
-                elif (status, weighted) not in (("new", "grown"), ("gone", "shrunk")):
-                    # registered by one survey only, but the other's map shows it there at a weighted
-                    # area within the noise: a patch near the detector's operating point, not a change
-                    # (unchanged walls: one flight registers a faint patch, the next leaves it out)
-                    which = "old" if not og else "new"
-                    note = (f"registered by one survey only; the {which} survey's detection map shows it there "
-                            f"below the register's limits ({po * 1e4:.0f} -> {pn * 1e4:.0f} cm² weighted, within the noise)")
-                    status = "unchanged"
-            ch = Change(status, cls, [d.id for _, d, _ in og], [d.id for _, d, _ in ng], (float(cu), float(cv)), a_old, a_new, bbox, note, None, po, pn)
-            if status in ("new", "gone") and max(a_old, a_new) < params.new_min_m2:
+                ch.note = f"not compared: {share} of its outline lies on the wall both surveys imaged"
+                outside.append(ch)
+            elif status in ("new", "gone") and max(a_old, a_new) < params.new_min_m2:
                 below.append(ch)
             else:
                 changes.append(ch)
     changes.sort(key=lambda c: (STATUSES.index(c.status), -abs(c.area_new_m2 - c.area_old_m2)))
     return changes, below, outside
+
+
+def _status(a_old: float, a_new: float, po: float | None, pn: float | None, params: CompareParams, note: str,
+            missing_from: str) -> tuple[str, str]:
+    """(status, note): new / gone from the register areas (one side empty), else grown / shrunk /
+    unchanged from the probability-weighted areas ``po``, ``pn`` when both maps are there. A group
+    registered by one survey only stays new / gone only when the weighted test agrees; otherwise the
+    other survey's map shows it there at a weighted area within the noise: a patch near the
+    detector's operating point that one flight registers and the next leaves out, not a change."""
+    status = classify(a_old, a_new, params)
+    if po is None or pn is None:
+        return status, note
+    weighted = classify(po, pn, params)
+    if status not in ("new", "gone"):
+        return weighted, note
+    if (status, weighted) in (("new", "grown"), ("gone", "shrunk")):
+        return status, note
+    return "unchanged", (f"registered by one survey only; the {missing_from} survey's detection map shows it there below the "
+                         f"register's limits ({po * 1e4:.0f} -> {pn * 1e4:.0f} cm² weighted, within the noise)")
 
 
 def _evidence(region, outline, mask, grid: Grid, params: CompareParams, which: str) -> tuple[float, str]:
