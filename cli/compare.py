@@ -21,7 +21,7 @@ registered by one survey only is new or gone only where the other survey's detec
 longer shows it; a faint patch near the detector's operating point is unchanged, with a note.
 
 OUT gets changes.json (inspect_pipe.changes/1: entries with status, old_id, new_id,
-centroid_wall_m, area_old_m2, area_new_m2), change_map.png, crops/ (old | new side by side),
+centroid_wall_m, area_old_m2, area_new_m2; below_noise; not_compared), change_map.png, crops/ (old | new side by side),
 report.html and report.pdf.
 
 Two runs of different walls (other vessel, hold or wall in their surveys, mosaics that do not
