@@ -33,21 +33,24 @@ def measure(old: Path, new: Path, truth_changes: list[dict] | None = None) -> di
            "below_noise": len(c.below_noise), "noise_rel_max": max(rel, default=0.0), "noise_abs_max_m2": max(dabs, default=0.0),
            "changes": [(ch.status, ch.cls, [round(x, 3) for x in ch.centroid_wall_m], round(ch.area_old_m2 * 1e4, 1), round(ch.area_new_m2 * 1e4, 1)) for ch in changes]}
     if truth_changes is not None:
-        hit, used = [], set()
-        for t in truth_changes:
-            best = None
-            for i, ch in enumerate(changes):
-                d = math.dist(ch.centroid_wall_m, t["centroid_wall_m"])
-                if ch.status in ("new", "grown") and d <= 0.10 and (best is None or d < best[0]):
-                    best = (d, i)
-            hit.append((t["truth"], t["kind"], None if best is None else (changes[best[1]].status, round(best[0] * 100, 1))))
-            if best is not None:
-                used.add(best[1])
-        out["true_changes"] = hit
-        out["false_changes"] = len(changes) - len(used)
+        found = match_truth([(ch.status, ch.centroid_wall_m) for ch in changes], truth_changes)
+        out["true_changes"] = [(t["truth"], t["kind"], None if f is None else (changes[f[0]].status, round(f[1] * 100, 1)))
+                               for t, f in zip(truth_changes, found)]
+        out["false_changes"] = len(changes) - len({f[0] for f in found if f is not None})
     else:
         out["false_changes"] = len(changes)
     return out
+
+
+def match_truth(changes: list[tuple[str, tuple[float, float]]], truth_changes: list[dict], within_m: float = 0.10) -> list:
+    """For each true change (``edit_demo_wall``'s), the nearest reported new or grown change within
+    ``within_m`` as (index into ``changes``, distance m), or None: issue 20's 'reported within 10 cm'."""
+    found = []
+    for t in truth_changes:
+        near = [(math.dist(c, t["centroid_wall_m"]), i) for i, (s, c) in enumerate(changes) if s in ("new", "grown")]
+        near = [x for x in near if x[0] <= within_m]
+        found.append(None if not near else (min(near)[1], min(near)[0]))
+    return found
 
 
 def run(data: Path) -> str:

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import math
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.bench_compare import match_truth  # noqa: E402
 from bench.bench_register import fly  # noqa: E402
 from inspect_pipe.pipeline._demo import build_demo_wall, edit_demo_wall  # noqa: E402
 from inspect_pipe.report._compare import CompareParams, _status, compare_runs  # noqa: E402
@@ -60,6 +60,10 @@ def main() -> None:
     ap.add_argument("--walls", default="6,7,8,9,10")
     ap.add_argument("--flights", default="21,22,23")
     a = ap.parse_args()
+    if not (DATA / "defects" / "vt_corrosion_cs" / "images").is_dir():
+        print(f"error: {DATA / 'defects' / 'vt_corrosion_cs'}: not found (the demo walls are cut from it; run from a checkout "
+              "beside shared/data)", file=sys.stderr)
+        sys.exit(2)
     walls = [int(x) for x in a.walls.split(",")]
     flights = [int(x) for x in a.flights.split(",")]
     same, edited = [], []  # (label, groups) / (label, groups, truth)
@@ -79,15 +83,11 @@ def main() -> None:
         fs = [len(_changes(g, p)) for _, g in same]
         hit = tot = fe = 0
         for _, g, truth in edited:
-            ch, used = _changes(g, p), set()
-            for t in truth:
-                near = [(math.dist(c, t["centroid_wall_m"]), i) for i, (s, c) in enumerate(ch) if s in ("new", "grown")]
-                near = [x for x in near if x[0] <= 0.10]
-                tot += 1
-                if near:
-                    hit += 1
-                    used.add(min(near)[1])
-            fe += len(ch) - len(used)
+            ch = _changes(g, p)
+            found = match_truth(ch, truth)
+            tot += len(truth)
+            hit += sum(f is not None for f in found)
+            fe += len(ch) - len({f[0] for f in found if f is not None})
         print(f"| {ab} + {rel:.0%} | {sum(fs)} | {sum(f > 0 for f in fs)} / {len(fs)} | {hit} / {tot} | {fe} |")
 
 

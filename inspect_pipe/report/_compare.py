@@ -335,13 +335,17 @@ def match_registers(old: SurveyRun, new: SurveyRun, grid: Grid, A: np.ndarray, p
             if old_probs and new_probs and cls in old_probs and cls in new_probs:
                 po = float(old_probs[cls][region].sum()) * grid.m ** 2
                 pn = float(new_probs[cls][region].sum()) * grid.m ** 2
-            status, note = _status(a_old, a_new, po, pn, params, note, "old" if not og else "new")
-            ch = Change(status, cls, [d.id for _, d, _ in og], [d.id for _, d, _ in ng], (float(cu), float(cv)), a_old, a_new, bbox, note, None, po, pn)
-            if seen_by_both < params.min_common_fraction:  # one survey did not see it: no change can be told
+            ids = [d.id for _, d, _ in og], [d.id for _, d, _ in ng]
+            if seen_by_both < params.min_common_fraction:
+                # one survey did not see it: no change can be told, and the weighted areas over a common
+                # part this small say nothing; the status is what the two registers alone say
                 share = "none" if seen_by_both < 0.005 else f"only {100 * seen_by_both:.0f} %"
-                ch.note = f"not compared: {share} of its outline lies on the wall both surveys imaged"
-                outside.append(ch)
-            elif status in ("new", "gone") and max(a_old, a_new) < params.new_min_m2:
+                outside.append(Change(classify(a_old, a_new, params), cls, *ids, (float(cu), float(cv)), a_old, a_new, bbox,
+                                      f"not compared: {share} of its outline lies on the wall both surveys imaged", None, po, pn))
+                continue
+            status, note = _status(a_old, a_new, po, pn, params, note, "old" if not og else "new")
+            ch = Change(status, cls, *ids, (float(cu), float(cv)), a_old, a_new, bbox, note, None, po, pn)
+            if status in ("new", "gone") and max(a_old, a_new) < params.new_min_m2:
                 below.append(ch)
             else:
                 changes.append(ch)

@@ -207,3 +207,4 @@ def test_a_defect_at_the_edge_of_one_surveys_coverage_is_compared_on_the_wall_bo
         assert corr == [] and doc["counts"]["gone"] == 0
         (nc,) = [e for e in doc["not_compared"] if e["class"] == "corrosion"]
         assert nc["old_id"] and "not compared" in nc["note"] and "both surveys imaged" in nc["note"]
+        assert nc["status"] == "gone"  # what the registers alone say; the note says why it is no verdict
