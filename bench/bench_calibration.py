@@ -19,7 +19,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe.capture._calibration import SUBPIX_CRITERIA, Board, calibrate, calibrate_images, detect_board
+from inspect_pipe.capture._calibration import (
+    OUTLIER_FACTOR,
+    OUTLIER_FLOOR_PX,
+    SUBPIX_CRITERIA,
+    Board,
+    calibrate,
+    calibrate_images,
+    detect_board,
+)
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture.synthetic_board import chessboard_image, random_poses, render_view
 
@@ -177,7 +185,8 @@ def _outlier_study() -> list[str]:
     rows = ["### Validation: the outlier rule (synthetic, known camera)\n",
             f"{n_sets} sets of 15 views (4 seeds; corners as detected, or with 0.6-1.4 x 0.15 px of added noise per view; 0, 1 or 2 views "
             f"misdetected: half their corners shifted 0.3-3 px, {n_bad_total} in all). Rule: a view is dropped when its RMS "
-            "error exceeds factor x the median view's and the floor. Shipped: 2 x median and 0.1 px.\n",
+            "error exceeds factor x the median view's and the floor. "
+            f"Shipped: {OUTLIER_FACTOR:g} x median and {OUTLIER_FLOOR_PX:g} px.\n",
             "| factor | floor (px) | mean / worst error of fx, fy, cx, cy (%) | good views dropped | misdetected views kept |",
             "|---|---|---|---|---|"]
     for r in RULES:

@@ -153,7 +153,7 @@ def run(data: Path) -> str:  # noqa: ARG001 - the capture benchmark brings its o
         "frame interval minus 100 ms. Goals: 0 drops, p99 <= 5 ms, writer >= 30 frames/s. "
         f"Machine load average {load0:.1f} at the start, {load1:.1f} at the end, on {os.cpu_count()} cores shared "
         "with other jobs (this process niced): with the cores busy elsewhere the grabbing thread waits for a "
-        "core; 5-s runs at a quieter moment measured 0.09 ms p99 at both sizes.",
+        "core, and the p99 of this table grows with the load; compare runs at equal load.",
         "",
         "| size | frames | drops (writer / late) | start jitter p99 / max | interval jitter p99 / max | disk |",
         "|---|---:|---:|---:|---:|---:|",

@@ -115,6 +115,10 @@ def _mae(root: Path, prob_of) -> float:
     return float(np.mean(errs))
 
 
+#: How each class's validation figure is named in the text (the order is the fitted file's).
+_FIGURE_OF = {"corrosion": "corrosion F1", "crack": "crack F", "surface": "SD-900 max F-beta"}
+
+
 def _speed(fn, img, n=10) -> tuple[float, float, float]:
     """(median wall ms, min wall ms, median CPU ms of this process). One thread: on a shared,
     loaded machine the CPU time is the time the detection would take on a free core."""
@@ -309,8 +313,8 @@ def run(data: Path) -> str:
          + f"; this run: saliency {s_cpu:.0f}, onnx {o_cpu:.0f}, fused {f_cpu:.0f}), the fastest within {DEFAULT_MARGIN} "
          f"of the best mean validation figure; rule's choice: {default_engine_on_validation(fus.params)}; without "
          f"the time condition: {default_engine_on_validation(fus.params, target_ms=None)}). "
-         f"Validation figures (crack F, corrosion F1, SD-900 max F-beta; "
-         f"saliency in-sample): " + "; ".join(f"{e} " + " / ".join(f"{v:.3f}" for v in sc.values())
+         f"Validation figures ({', '.join(_FIGURE_OF[c] for c in fus.params['classes'])}; "
+         f"saliency in-sample): " + "; ".join(f"{e} " + " / ".join(f"{sc[c]:.3f}" for c in fus.params["classes"])
                                                for e, sc in validation_scores(fus.params).items())
          + f". On this eval table the network beats saliency at the operating point on {sum(better)} of 3 sets."),
         "",

@@ -281,15 +281,15 @@ def run(
 @one_line_errors
 def train(
     data: Annotated[Path, typer.Argument(help="A defects folder holding crackforest/, vt_corrosion_cs/, sd_saliency_900/, or one labelled folder.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Model file to write (.npz).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Model file to write: .npz (saliency tables) or .onnx (--engine onnx).")],
     cls: Annotated[Optional[str], typer.Option("--class", help="Class name for a generic images/ + masks/ folder.")] = None,
     only: Annotated[str, typer.Option("--only", help="Comma-separated classes to train (default: all found).")] = "",
     version: Annotated[Optional[str], typer.Option("--version", help="Version recorded in the model (default: the shipped one's, saliency tables 1, the onnx network 5).")] = None,
-    engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra, about an hour).")] = Engine.saliency,
+    engine: Annotated[Engine, typer.Option("--engine", help="saliency: likelihood tables (.npz), the default here (minutes); onnx: the learned network (.onnx, needs the [train] extra; about 28 min of one CPU core for the decider's 2240 steps, 55 min for v6's 4480, plus a 3-min export).")] = Engine.saliency,
     time_budget_min: Annotated[float, typer.Option("--time-budget-min", help="onnx: training stops after this many minutes of wall time (its schedule ends at the step limit or here, whichever comes first).", min=1)] = 85.0,
     max_steps: Annotated[Optional[int], typer.Option("--max-steps", help="onnx: the step limit of the schedule (default: the decider's recipe, 2240; the condition-state network v6: 4480).", min=1)] = None,
 ) -> None:
-    """Learn the likelihood tables from labelled images (train part of the documented split only).
+    """Learn a detector from labelled images (train part of the documented split only): the saliency engine's likelihood tables (.npz), or with --engine onnx the learned network (.onnx).
 
     Examples: inspect-pipe detect train ../shared/data/defects -o inspect_pipe/saliency_defects/models/defects_v1.npz ;
     inspect-pipe detect train ../shared/data/defects --engine onnx -o inspect_pipe/saliency_defects/models/defects_unet_v5.onnx --version 5 ;
@@ -345,22 +345,24 @@ def _train_onnx(data: Path, out: Path, version: str, time_budget_min: float, max
 
     from inspect_pipe.saliency_defects._onnx_train import ENCODERS, OnnxTrainConfig
 
-    # the wheels of the shipped recipe's encoder (Lite1 since v4), not only the model code's
+    from inspect_pipe.saliency_defects._core import SET_OF_CLASS
+
+    # the data first (a wrong folder is said before a missing package), then the wheels of the
+    # shipped recipe's encoder (Lite1 since v4), not only the model code's
+    if not data.is_dir():
+        raise InputError(data, "not a folder")
+    missing = [s for s in SET_OF_CLASS.values() if not (data / s).is_dir()]
+    if missing:
+        raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
     for pkg in ("torch", "onnx", *ENCODERS[OnnxTrainConfig().arch]["packages"]):
         if importlib.util.find_spec(pkg.replace("-", "_")) is None:
             raise InputError(pkg, "not installed", "pip install -e '.[train]'")
-    from inspect_pipe.saliency_defects._core import SET_OF_CLASS
     from inspect_pipe.saliency_defects._onnx_train import (
         OnnxTrainConfig,
         export_model,
     )
     from inspect_pipe.saliency_defects._onnx_train import train as train_net
 
-    if not data.is_dir():
-        raise InputError(data, "not a folder")
-    missing = [s for s in SET_OF_CLASS.values() if not (data / s).is_dir()]
-    if missing:
-        raise InputError(data, f"missing {', '.join(missing)}", "the onnx engine trains on all three shared sets")
     ckpt = out.with_suffix(".pt")
     # the cosine schedule ends at max_steps or at the budget, whichever first
     cfg = OnnxTrainConfig(time_budget_s=60 * time_budget_min, total_time_budget_s=60 * (time_budget_min + 3),

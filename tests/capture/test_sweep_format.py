@@ -222,6 +222,7 @@ def test_a_state_feed_gives_each_frame_the_state_at_mid_exposure(tmp_path):
     run_capture(CountingSource(clock, n=20), tmp_path / "sw", clock=clock, config=CaptureConfig(), state_feed=feed)
     s = read_sweep(tmp_path / "sw")
     # THEN the position is the one at deadline + exposure / 2, interpolated between telemetry samples
+    assert len(s.frames) == 20
     for f in s.frames:
         assert f.position_m[0] == pytest.approx(10.0 + f.t_s, abs=1e-4) and f.t_s == pytest.approx(0.1 * f.index + 0.001)
         assert f.dist_front_m == pytest.approx(2.0 - f.t_s, abs=1e-4) and f.raw["state"]["t_s"] == pytest.approx(f.t_s)

@@ -59,7 +59,9 @@ def test_per_class_decisions_are_the_engines_own(name):
 def test_batch_equals_one_at_a_time():
     eng = load_engine("onnx")
     imgs = [cv2.imread(str(FIX / f), cv2.IMREAD_COLOR) for f in ("crackforest_004.jpg", "crackforest_014.jpg", "vt_train_112.jpeg")]
-    for a, b in zip(eng.detect_batch(imgs, kinds=KINDS), [eng.detect(im, kinds=KINDS) for im in imgs]):
+    batch = eng.detect_batch(imgs, kinds=KINDS)
+    assert len(batch) == len(imgs)
+    for a, b in zip(batch, [eng.detect(im, kinds=KINDS) for im in imgs]):
         assert np.array_equal(a.mask, b.mask) and np.abs(a.prob.astype(int) - b.prob).max() <= 1
 
 

@@ -174,6 +174,7 @@ def test_batch_of_frames_equals_one_by_one(model):
     b = cv2.imread(str(FIX / "crackforest_014.jpg"))
     c = cv2.imread(str(FIX / "vt_train_112.jpeg"))
     dets = od.detect_onnx_batch([a, b, c, a], model, batch=2)
+    assert len(dets) == 4
     for img, d in zip([a, b, c, a], dets):
         one = od.detect_onnx(img, model)
         assert np.abs(d.prob.astype(int) - one.prob.astype(int)).max() <= 1
@@ -226,9 +227,17 @@ def test_decision_and_regions_equal_the_plain_formulas():
 
 
 def test_grey_image_works_for_every_class(model):
+    # GIVEN a crack photo read as grey (one channel)
     g = cv2.imread(str(FIX / "crackforest_004.jpg"), cv2.IMREAD_GRAYSCALE)
-    det = od.detect_onnx(g, model, kinds=("crack", "surface"))
-    assert det.prob.shape == g.shape
+    det = od.detect_onnx(g, model, kinds=("corrosion", "crack", "surface"))
+    # THEN every class has its map at the image's size, and the grey image is the colour image with
+    # its three channels equal: the same maps as the network gives that image
+    assert det.prob.shape == g.shape and set(det.class_probs) == {"corrosion", "crack", "surface"}
+    same = od.detect_onnx(np.repeat(g[:, :, None], 3, axis=2), model, kinds=("corrosion", "crack", "surface"))
+    for k in det.class_probs:
+        assert det.class_probs[k].shape == g.shape and np.array_equal(det.class_probs[k], same.class_probs[k]), k
+    # AND the crack is found on it (the fixture's label is a crack)
+    assert any(r.cls == "crack" for r in det.regions)
 
 
 def test_image_too_small_is_a_value_error(model):
