@@ -40,7 +40,8 @@ Examples:
 
 Exit 0 on success; 2 on bad input (empty folder, unreadable or truncated images, images of
 different sizes, no overlap, a --focal-px the images contradict: then the self-calibrated one is
-used), after writing whatever could be mosaicked. A sweep is read as
+used), after writing whatever could be mosaicked; OUT's earlier mosaic, if it was made without
+such problems, is then kept and nothing replaced. A sweep is read as
 `run` reads it: a last frames.jsonl line cut by a crash, a COMPLETE marker that lists more frames
 than the disk holds, and frames that cannot be read (or, with --verify, whose sha256 differs
 from COMPLETE's) give one warning line; those frames are listed as unplaced with the reason in
@@ -84,6 +85,8 @@ def mosaic(
             raise fail(f"{input}: --survey needs a sweep directory (a plain folder has no vehicle positions to place on the wall)")
         result = run_mosaic_folder(input, out, params=params, progress=progress, camera=cam)
     progress.close()
+    if not result.published:  # bad input over a good earlier mosaic: that one is kept
+        raise fail(result.problems[0])
     if cam is not None and (out / "mosaic.json").is_file():
         used = (json.loads((out / "mosaic.json").read_text()).get("input") or {}).get("camera") or {}
         if scaled_note(used):

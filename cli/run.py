@@ -197,23 +197,33 @@ def run(
 
     kinds, scheme = kind.value, scheme.value
     rerun_from = rerun_from.value if rerun_from is not None else None
+    # Bad input is found before anything is written: one input, it is the error; several, each bad
+    # one is a failure of its own (printed, in runs.json) and the others still run.
+    cfg_of: dict[str, object] = {}
+    bad: dict[str, str] = {}
     for spec in inputs:
-        input_kind(spec)  # bad input: before anything is written
-        if cam is not None:
-            line = check_camera(spec, cam)
-            if line:
-                note(line)
-    cfgs = [build_config(s, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m, no_pdf=no_pdf,
-                         m_per_px=m_per_px, focal_px=focal_px, engine=engine.value, verify=verify, survey_plan=plan,
-                         camera=cam, model=model) for s in inputs]
-    check_engine(cfgs[0].detect)
-    for spec in inputs:
-        if input_kind(spec) == "sweep":
-            warn_missing(Path(spec), plan, camera=cam)
+        try:
+            input_kind(spec)
+            if cam is not None:
+                line = check_camera(spec, cam)
+                if line:
+                    note(line)
+            cfg_of[spec] = build_config(spec, kinds=kinds, keyframe_spacing=keyframe_spacing, scheme=scheme, area_m=area_m,
+                                        no_pdf=no_pdf, m_per_px=m_per_px, focal_px=focal_px, engine=engine.value,
+                                        verify=verify, survey_plan=plan, camera=cam, model=model)
+            if input_kind(spec) == "sweep":
+                warn_missing(Path(spec), plan, camera=cam)
+        except InputError as err:
+            if len(inputs) == 1:
+                raise
+            bad[spec] = str(err)
+            cfg_of.pop(spec, None)
+    if cfg_of:
+        check_engine(next(iter(cfg_of.values())).detect)
     if len(inputs) == 1:
         prog = RichProgress(_name(inputs[0]))
         try:
-            o = run_pipeline(out, cfgs[0], force=force, rerun_from=rerun_from, progress=prog, log=note)
+            o = run_pipeline(out, cfg_of[inputs[0]], force=force, rerun_from=rerun_from, progress=prog, log=note)
         finally:
             prog.close()
         print_outcome(o)
@@ -221,9 +231,14 @@ def run(
     names = [_name(s) for s in inputs]
     if len(set(names)) != len(names):
         raise InputError(inputs[0], "two inputs have the same name", "their run directories would collide")
-    jobs = [(out / n, c) for n, c in zip(names, cfgs)]
+    jobs = [(out / n, cfg_of[s]) for n, s in zip(names, inputs) if s in cfg_of]
     failed: list[str] = []
     errors: dict[str, str] = {}
+    for n, spec in zip(names, inputs):
+        if spec in bad:
+            failed.append(bad[spec])
+            errors[str(out / n)] = bad[spec]
+            typer.echo(f"{out / n}: error: {bad[spec]}", err=True)
     bar = None
     if progress_enabled():
         from rich.progress import Progress
@@ -247,9 +262,11 @@ def run(
     finally:
         if bar:
             bar.stop()
-    summary = [{"run": str(d), "input": c.input, "status": "failed" if str(d) in errors else "done", "error": errors.get(str(d))}
-               for d, c in jobs]
+    summary = [{"run": str(out / n), "input": spec, "status": "failed" if str(out / n) in errors else "done",
+                "error": errors.get(str(out / n))} for n, spec in zip(names, inputs)]
+    out.mkdir(parents=True, exist_ok=True)
     write_json(out / "runs.json", {"format": "inspect_pipe.runs/1", "runs": summary})
     if failed:
         names = ", ".join(Path(r["run"]).name for r in summary if r["error"])
-        raise InputError(str(out / "runs.json"), f"{len(failed)} of {len(jobs)} sweeps failed ({names}); the others finished; first: {failed[0]}")
+        others = "; the others finished" if len(failed) < len(inputs) else ""
+        raise InputError(str(out / "runs.json"), f"{len(failed)} of {len(inputs)} sweeps failed ({names}){others}; first: {failed[0]}")

@@ -58,7 +58,14 @@ def run_mosaic_folder(
     camera=None,
 ) -> MosaicOutput:
     """Mosaic a folder of images; with ``camera`` (a calibrated ``CameraModel``) its frames are
-    undistorted, the mosaic rectified with its K, and mosaic.json records the camera used."""
+    undistorted, the mosaic rectified with its K, and mosaic.json records the camera used. Written
+    as ``_publish.staged`` writes: a result with problems never replaces a good earlier mosaic."""
+    from ._publish import staged
+
+    return staged(out_dir, lambda d: _mosaic_folder_into(folder, d, params=params, progress=progress, camera=camera))
+
+
+def _mosaic_folder_into(folder: Path, out_dir: Path, *, params: MosaicParams, progress, camera) -> MosaicOutput:
     if camera is None:
         return run_mosaic(FolderSource(folder), out_dir, params=params, progress=progress)
     source = UndistortedFolderSource(folder, camera)

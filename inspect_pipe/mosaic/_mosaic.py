@@ -39,6 +39,9 @@ class MosaicOutput:
     problems: list[str]  # bad-input findings, one line each (first is the headline)
     n_input: int = 0
     warnings: list[str] = field(default_factory=list)  # a sweep's skipped lines and unplaceable frames: the mosaic stands
+    #: False: the result had problems and OUT holds an earlier mosaic made without any, which was
+    #: kept (``_publish.staged``); nothing of this run is in OUT.
+    published: bool = True
 
     @property
     def n_placed(self) -> int:
@@ -177,16 +180,25 @@ _BAD_INPUT_MARKS = ("unreadable", "truncated", "not a ", "empty file", "cannot r
 
 
 def _problems(source: FrameSource, unplaced: dict[int, str], H: dict[int, np.ndarray], single: bool) -> list[str]:
+    """One line per bad-input finding, naming the file (its path where the source has one) or the
+    folder, and what to do."""
+    where = getattr(source, "path", None)
+    folder = getattr(source, "folder", None)
+
+    def named(f: int) -> str:
+        return str(where(f)) if callable(where) else source.name(f)
+
     out = []
     if single:
-        out.append(f"{source.name(0)}: only one image; a mosaic needs at least two overlapping images")
+        out.append(f"{named(0)}: only one image; a mosaic needs at least two overlapping images")
     bad = [(f, r) for f, r in sorted(unplaced.items()) if r.startswith(_BAD_INPUT_MARKS)]
     if bad:
         f, r = bad[0]
         more = f" (and {len(bad) - 1} more, listed in mosaic.json)" if len(bad) > 1 else ""
-        out.append(f"{source.name(f)}: {r}{more}")
+        out.append(f"{named(f)}: {r}{more} (replace or remove it and run again)")
     if not H and len(source) > 1:
-        out.append(f"no two of the {len(source)} images overlap enough to register; nothing mosaicked")
+        out.append(f"{folder or 'the input'}: no two of the {len(source)} images overlap enough to register; nothing "
+                   "mosaicked (consecutive images, by name, should share a third of their view or more)")
     return out
 
 
@@ -208,7 +220,16 @@ def run_mosaic_sweep(
     than are there) and frames that cannot be read (listed under ``unplaced`` with the reason)
     are ``warnings``: the whole frames are mosaicked. ``problems`` is left for a sweep of which
     nothing could be placed. ``verify`` checks every file against COMPLETE's sha256 first.
-    ``survey_plan`` (``inspect_pipe.ship.SurveyPlan``) overrides the plan stored in the sweep."""
+    ``survey_plan`` (``inspect_pipe.ship.SurveyPlan``) overrides the plan stored in the sweep.
+    Written as ``_publish.staged`` writes: a result with problems never replaces a good earlier mosaic."""
+    from ._publish import staged
+
+    return staged(out_dir, lambda d: _mosaic_sweep_into(sweep_dir, d, params=params, progress=progress, verify=verify,
+                                                         survey_plan=survey_plan, camera=camera))
+
+
+def _mosaic_sweep_into(sweep_dir: Path, out_dir: Path, *, params: MosaicParams, progress, verify: bool, survey_plan,
+                       camera) -> MosaicOutput:
     from dataclasses import replace
 
     from inspect_pipe.capture import read_sweep

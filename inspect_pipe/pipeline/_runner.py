@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import replace, dataclass, field
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import Callable
 import inspect_pipe
 from inspect_pipe.errors import InputError
 
-from ._steps import STEP_NAMES, STEPS, Progress, RunConfig, check_input, input_kind, step_options
+from ._steps import STEP_NAMES, STEPS, EarlierRunKept, Progress, RunConfig, check_input, input_kind, step_options
 from ._store import RunStore
 
 
@@ -73,6 +74,7 @@ def run_pipeline(
     store.root.mkdir(parents=True, exist_ok=True)
     steps = plan(store, cfg, force=force, rerun_from=rerun_from)
     doc = store.load_run()
+    before = json.loads(json.dumps(doc))  # what run.json said, for a step that keeps the earlier run
     doc["input"] = {"spec": cfg.input, "kind": kind,
                     "sweep": str(Path(cfg.input).resolve()) if kind == "sweep" else None}
     doc["software"] = f"inspect_pipe {inspect_pipe.__version__}"
@@ -88,10 +90,15 @@ def run_pipeline(
             continue
         store.forget_step(name)  # a crash mid-step leaves it not done
         t0 = time.monotonic()
-        if name == "report":
-            outcome.report = step.run(store, cfg, progress, log=log)
-        else:
-            step.run(store, cfg, progress)
+        try:
+            if name == "report":
+                outcome.report = step.run(store, cfg, progress, log=log)
+            else:
+                step.run(store, cfg, progress)
+        except EarlierRunKept:
+            if before.get("steps") or before.get("input"):
+                store.save_run(before)
+            raise
         dt = time.monotonic() - t0
         store.mark_step(name, {"options": step_options(step, cfg), "seconds": round(dt, 3),
                                "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})

@@ -165,6 +165,11 @@ def capture_done(store: RunStore) -> bool:
 # ---------------------------------------------------------------------------------- mosaic
 
 
+class EarlierRunKept(InputError):
+    """A step refused bad input rather than replace the earlier run's output, which is untouched:
+    the run record (``run.json``) goes back to what it said before this run."""
+
+
 def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) -> None:
     from inspect_pipe import mosaic as M
 
@@ -175,6 +180,8 @@ def run_mosaic_step(store: RunStore, cfg: RunConfig, progress: Progress | None) 
                                  survey_plan=cfg.plan(), camera=cfg.camera_model())
     else:
         out = M.run_mosaic_folder(Path(cfg.input), store.mosaic_dir, params=params, progress=progress, camera=cfg.camera_model())
+    if not out.published:  # bad input over the good mosaic of an earlier run: that run is kept
+        raise EarlierRunKept(cfg.input, out.problems[0])
     if not out.H:
         raise InputError(cfg.input, out.problems[0] if out.problems else "no frame could be placed")
     # what `inspect-pipe mosaic` prints, the run prints too: frames left out (unreadable, cut short) and a mosaic

@@ -131,3 +131,38 @@ def test_two_disconnected_groups_give_two_mosaics(tmp_path):
     assert (out / "mosaic.png").exists() and (out / "mosaic_group1.png").exists()
     assert {f["group"] for f in doc["frames"]} == {0, 1}
     assert doc["unplaced"] == []
+
+
+def test_bad_input_never_replaces_a_good_earlier_mosaic(tmp_path):
+    # GIVEN a good mosaic in OUT
+    good = _copy(tmp_path)
+    out = tmp_path / "out"
+    assert runner.invoke(app, ["mosaic", str(good), "-o", str(out), "-q"]).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert json.loads((out / "mosaic.json").read_text())["problems"] == []
+    # WHEN the same OUT is given a folder with a truncated frame, then one whose images do not overlap
+    bad = tmp_path / "bad"
+    shutil.copytree(good, bad)
+    data = (bad / "frame_0003.jpg").read_bytes()
+    (bad / "frame_0003.jpg").write_bytes(data[: len(data) // 2])
+    apart = tmp_path / "apart"
+    apart.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(2):
+        cv2.imwrite(str(apart / f"{i}.png"), rng.integers(0, 255, (96, 128, 3), dtype=np.uint8))
+    for src, what in ((bad, "frame_0003.jpg: truncated"), (apart, "overlap")):
+        res = runner.invoke(app, ["mosaic", str(src), "-o", str(out), "-q"])
+        # THEN exit 2, one line naming the file (with its folder) or the folder, and saying the earlier mosaic is kept ...
+        last = res.output.strip().splitlines()[-1]
+        assert res.exit_code == 2 and what in last and str(src) in last and "keeps its earlier mosaic" in last, res.output
+        # ... which is there byte for byte, with nothing added, and no staging folder left beside it
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+        assert [p.name for p in tmp_path.iterdir() if "staging" in p.name] == []
+    # AND over an output that had problems of its own, a new result replaces it: stale group images go
+    partial = tmp_path / "partial"
+    assert runner.invoke(app, ["mosaic", str(bad), "-o", str(partial), "-q"]).exit_code == 2
+    assert len(json.loads((partial / "mosaic.json").read_text())["problems"]) == 1
+    (partial / "mosaic_group1.png").write_bytes((partial / "mosaic.png").read_bytes())  # as an earlier run would leave
+    assert runner.invoke(app, ["mosaic", str(apart), "-o", str(partial), "-q"]).exit_code == 2
+    doc = json.loads((partial / "mosaic.json").read_text())
+    assert doc["mosaic"] is None and sorted(p.name for p in partial.iterdir()) == ["mosaic.json"]

@@ -148,6 +148,45 @@ def test_run_many_finishes_the_others_and_lists_the_failed_one(tmp_path, monkeyp
     assert last.startswith("error:") and "1 of 2 sweeps failed (bad)" in last
 
 
+def test_a_sweep_unreadable_before_running_is_a_failure_of_its_own_in_a_batch(tmp_path):
+    # GIVEN a good sweep and one whose sweep.json was cut short (found before anything is written)
+    good = make_sweep(tmp_path / "good")
+    bad = make_sweep(tmp_path / "cut")
+    text = (bad / "sweep.json").read_text()
+    (bad / "sweep.json").write_text(text[: len(text) // 2])
+    out = tmp_path / "runs"
+    r = runner.invoke(app, ["run", str(good), str(bad), "-o", str(out), "--workers", "1", "--keyframe-spacing", "0", "--no-pdf", "--m-per-px", "0.002"])
+    # THEN the good one finishes, the bad one is listed failed with the file named, and the exit is 2
+    assert r.exit_code == 2
+    assert (out / "good" / "report" / "report.html").is_file()
+    runs = json.loads((out / "runs.json").read_text())["runs"]
+    assert [(Path(x["run"]).name, x["status"]) for x in runs] == [("good", "done"), ("cut", "failed")]
+    assert "sweep.json" in runs[1]["error"] and not (out / "cut").exists()
+    last = r.output.strip().splitlines()[-1]
+    assert "1 of 2 sweeps failed (cut); the others finished" in last
+
+
+def test_a_rerun_on_bad_frames_keeps_the_earlier_run_whole(tmp_path):
+    # GIVEN a finished run of a folder of frames
+    src = tmp_path / "frames"
+    src.mkdir()
+    for p in sorted(FIXTURE.glob("*.jpg")):
+        (src / p.name).write_bytes(p.read_bytes())
+    out = tmp_path / "run"
+    args = ["-o", str(out), "--workers", "1", "--keyframe-spacing", "0", "--no-pdf", "--m-per-px", "0.002"]
+    assert runner.invoke(app, ["run", str(src), *args]).exit_code == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    # WHEN it is run again after a frame was cut short on disk
+    data = (src / "frame_0003.jpg").read_bytes()
+    (src / "frame_0003.jpg").write_bytes(data[: len(data) // 2])
+    r = runner.invoke(app, ["run", str(src), *args, "--force"])
+    # THEN exit 2, one line naming the frame and saying the earlier mosaic is kept, and every file of
+    # the run, run.json included, is as it was
+    last = r.output.strip().splitlines()[-1]
+    assert r.exit_code == 2 and "frame_0003.jpg: truncated" in last and "keeps its earlier mosaic" in last, r.output
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
 def test_coco_names_the_mosaic_where_it_lies_and_outputs_are_readable(tmp_path, umask):
     umask(0o022)
     sw = make_sweep(tmp_path / "sw")
