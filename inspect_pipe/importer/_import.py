@@ -178,6 +178,9 @@ def import_footage(
     t0 = time.perf_counter()
     track = read_flight_log(log_path)
     secs["log"] = time.perf_counter() - t0
+    if track.skipped[0]:
+        note(f"{log_path}: {track.skipped[0]} garbled stretch(es), {track.skipped[1]} bytes, skipped; the "
+             "messages around them were read (the sweep's meta records it)")
     camera = _camera(Path(camera_path) if camera_path is not None else None, footage)
     base = track.utc_offset_s or 0.0
     tc = np.array([f.t_camera_s for f in frames]) - base  # camera times on the log's clock, before the offset
@@ -202,9 +205,14 @@ def import_footage(
         imgs = (img for _f, img in footage.load(frames, reduce=4))
         a, b, s = image_motion(imgs, list(tc))
         align = find_offset(track, a, b, s, search=search)
+        if align.correlation is None and align.pairs >= 5:  # the images registered; the log holds too little of them
+            raise InputError(str(log_path), f"covers {track.end_s - track.start_s:.1f} s, too little of the footage's "
+                             f"{tc[-1] - tc[0]:.1f} s to find the camera clock offset (half of the frames must fall "
+                             "inside it at every offset searched)", "give the whole log of this flight, or --time-offset S, the camera "
+                             "time minus the log time")
         if align.correlation is None:
-            raise InputError(str(frames_path), "too few frame pairs could be registered to find the camera clock offset",
-                             "give --time-offset S (camera time minus log time)")
+            raise InputError(str(frames_path), f"only {align.pairs} pairs of consecutive frames could be registered, too "
+                             "few to find the camera clock offset", "give --time-offset S (camera time minus log time)")
         if align.confidence is not None and align.confidence < MIN_CONFIDENCE:
             raise InputError(str(log_path), f"does not explain the footage's motion: the best camera clock offset, "
                              f"{align.camera_clock_offset_s:+.3f} s, has confidence {align.confidence:.2f} (correlation "

@@ -195,6 +195,31 @@ def test_a_log_that_does_not_cover_the_frames(flight, tmp_path):
     assert len(read_sweep(tmp_path / "hour").frames) >= 115
 
 
+def test_a_log_cut_short_is_named_not_the_images(flight, tmp_path):
+    # GIVEN the flight's tlog cut to its first 30 % (the download stopped early)
+    raw = (flight / "f.tlog").read_bytes()
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(raw[: int(0.3 * len(raw))])
+    msg = _run_bad(tmp_path, flight / "DCIM", cut)
+    # THEN the line names the log and says how much of the footage it covers
+    assert str(cut) in msg and "too little of the footage's" in msg and "DCIM" not in msg
+
+
+def test_garbled_bytes_in_a_tlog_are_skipped_and_said(flight, tmp_path):
+    # GIVEN the flight's tlog with 400 random bytes written over its middle
+    raw = bytearray((flight / "f.tlog").read_bytes())
+    mid = len(raw) // 2
+    raw[mid:mid + 400] = bytes(np.random.default_rng(5).integers(0, 256, 400, dtype=np.uint8))
+    bad = tmp_path / "garbled.tlog"
+    bad.write_bytes(bytes(raw))
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(bad), "-o", str(tmp_path / "sw")])
+    # THEN the import succeeds, says the log had garbled stretches, and the sweep's meta records them
+    assert res.exit_code == 0, res.output
+    assert f"{bad}: " in res.output and "garbled stretch" in res.output
+    log = read_sweep(tmp_path / "sw").meta.source["flight_log"]
+    assert log["skipped_garbled"]["stretches"] >= 1 and log["skipped_garbled"]["bytes"] > 0
+
+
 def test_a_video_the_decoder_refuses(flight, tmp_path):
     bad = tmp_path / "broken.mp4"
     bad.write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 20)
