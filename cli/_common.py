@@ -6,6 +6,7 @@ import errno
 import functools
 import math
 from enum import Enum
+from pathlib import Path
 import logging
 import sys
 from typing import Annotated, Callable, TypeVar
@@ -54,6 +55,10 @@ def one_line_errors(func: F) -> F:
             raise fail(f"{err.filename}: not found") from None
         except PermissionError as err:
             raise fail(f"{err.filename}: permission denied") from None
+        except (FileExistsError, NotADirectoryError) as err:  # a file where a folder is to be made
+            if err.filename and Path(err.filename).is_file():
+                raise fail(f"{err.filename}: a file is there, where a folder is written (give another -o, or move the file)") from None
+            raise fail(os_error_line(err)) from None
         except OSError as err:  # a full or read-only disk, a failing device: one line, exit 2
             raise fail(os_error_line(err)) from None
         except KeyboardInterrupt:

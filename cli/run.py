@@ -121,11 +121,16 @@ def check_engine(dc) -> None:
 def warn_missing(sweep_dir: Path, plan, echo=None, camera=None) -> None:
     """One warning line per piece the sweep lacks for a report in metres and ship terms
     (``doctor --sweep`` says the same at length); the report lists them as limitations.
-    ``camera`` (--camera) supplies the calibration a sweep may lack."""
+    ``camera`` (--camera) supplies the calibration a sweep may lack. A sweep with no readable
+    frame is :class:`InputError` (the mosaic step's own line), before any warning."""
     from inspect_pipe.capture import read_sweep
     from inspect_pipe.pipeline._readiness import sweep_readiness
 
-    for f in sweep_readiness(read_sweep(sweep_dir), plan):
+    sweep = read_sweep(sweep_dir)
+    if not sweep.frames:  # nothing to run on: the one error, not warnings about what the frames lack
+        why = f" ({sweep.problems[0]})" if sweep.problems else ""
+        raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
+    for f in sweep_readiness(sweep, plan):
         if not f.ok and not (camera is not None and f.what == "calibration"):
             (echo or note)(f"warning: {sweep_dir}: {f.what}: {f.detail}")
 

@@ -89,7 +89,11 @@ class Board:
             raise InputError("--square-m", f"{self.square_m:g} m a square", "the side of one square in metres, e.g. 0.025")
         if self.kind == "charuco":
             if self.marker_m is None or not (0 < self.marker_m < self.square_m):
-                raise InputError("--marker-m", f"{self.marker_m}: a ChArUco board needs the marker side, smaller than the square")
+                if self.marker_m is None:
+                    raise InputError("--marker-m", "missing: a ChArUco board needs the side of its markers",
+                                     f"give --marker-m, in m, smaller than the square's {self.square_m:g}")
+                raise InputError("--marker-m", f"{self.marker_m:g}: a ChArUco marker must be smaller than the square "
+                                 f"({self.square_m:g} m) and more than 0")
             if not hasattr(cv2.aruco, self.dictionary):
                 raise InputError("--dictionary", f"{self.dictionary!r} is not an OpenCV ArUco dictionary", "e.g. DICT_6X6_250, DICT_5X5_100, DICT_4X4_50")
 

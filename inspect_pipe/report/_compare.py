@@ -93,6 +93,11 @@ def load_survey_run(path: Path) -> SurveyRun:
         raise InputError(str(path), "not found" if not path.exists() else "not a directory", "give a run directory written by inspect-pipe run")
     reg = path / "report" / "defects.json"
     if not reg.is_file():
+        if (path / "sweep.json").is_file() or (path / "frames.jsonl").is_file():  # a capture, not a run of it
+            raise InputError(str(path), "a sweep, not a run", f"run inspect-pipe run {path} -o RUN first and compare RUN")
+        if not (path / "mosaic" / "mosaic.json").is_file() or not (path / "detect").is_dir():
+            raise InputError(str(path), "not a run directory (no mosaic/ and detect/ of inspect-pipe run)",
+                             "give a run directory written by inspect-pipe run")
         raise InputError(str(reg), "missing: the run has no register", f"run inspect-pipe report {path} -o {path / 'report'} first")
     doc = read_json(reg)
     if doc.get("format") != REGISTER_FORMAT or not isinstance(doc.get("defects"), list):

@@ -180,15 +180,27 @@ def frame_footprint_px(H: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
     return c[:, :2] / c[:, 2:3]
 
 
+#: The run step that writes each of a run's JSON files (what to redo when one is damaged).
+_WRITTEN_BY = {("mosaic", "mosaic.json"): "mosaic", ("detect", "defects.json"): "detect", ("report", "defects.json"): "report"}
+
+
+def _redo_hint(path: Path) -> str:
+    step = _WRITTEN_BY.get((path.parent.name, path.name))
+    if step is None:
+        return "re-create it with the command that wrote it"
+    return f"the file is damaged: inspect-pipe run INPUT -o {path.parent.parent} --rerun-from {step} writes it again"
+
+
 def read_json(path: Path) -> dict:
     import json
 
+    path = Path(path)
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = json.loads(path.read_text())
     except FileNotFoundError:
         raise InputError(str(path), "missing") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(str(path), f"not valid JSON ({err.__class__.__name__})") from None
+        raise InputError(str(path), f"not valid JSON ({err.__class__.__name__})", _redo_hint(path)) from None
     if not isinstance(doc, dict):
-        raise InputError(str(path), "not a JSON object")
+        raise InputError(str(path), "not a JSON object", _redo_hint(path))
     return doc

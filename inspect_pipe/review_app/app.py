@@ -66,6 +66,13 @@ def open_review(run_dir: Path, reviewer: str | None) -> tuple[Review, Any, Any]:
     if reviewer is None:
         reviewer = _surveyor(rdir)
         if not reviewer:
+            # a missing or damaged register is said first: a name would not make it reviewable
+            from inspect_pipe.report._register import read_register
+
+            reg = rdir / "defects.json"
+            if not reg.is_file():
+                raise InputError(str(reg), "not found: the run has no register", "run inspect-pipe run (or report) on it first")
+            read_register(reg, rdir / "defects.csv")
             raise InputError("--reviewer", "missing and the survey plan names no surveyor", "give --reviewer 'NAME'")
     return Review.open(rdir, reviewer), store, cfg
 

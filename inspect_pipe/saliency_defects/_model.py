@@ -372,7 +372,8 @@ def load_model(path: Path) -> DefectModel:
             arrays = {k: z[k] for k in z.files if k != "meta"}
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError) as err:
         # a truncated or bit-flipped .npz fails its zip structure, its CRC or its deflate stream
-        raise ValueError(f"not a defect model file ({err.__class__.__name__}: {str(err)[:120]})") from None
+        why = "holds Python objects, which are not read" if "pickled" in str(err) else f"{err.__class__.__name__}: {str(err)[:80]}"
+        raise ValueError(f"not a defect model file ({why}; give a .npz written by 'inspect-pipe detect train')") from None
     if not isinstance(header, dict):
         raise ValueError("not a defect model file (its header is not a JSON object)")
     try:

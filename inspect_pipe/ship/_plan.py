@@ -174,7 +174,10 @@ def imo_check_digit_ok(imo: str) -> bool:
 
 
 def _first_error(err: ValidationError) -> str:
-    e = err.errors()[0]
+    errors = err.errors()
+    # a union (frame_spacing_m: a number or a table) reports every branch's error: the deepest is
+    # the branch the input took (a table entry's negative spacing, not "should be a number")
+    e = max(errors, key=lambda x: (len(x["loc"]), -errors.index(x)))
     # unions and constrained types add their branch names to the path: keep keys and indices
     loc = ".".join(str(p) for p in e["loc"] if isinstance(p, int) or ("[" not in p and "-" not in p))
     msg = e["msg"].removeprefix("Value error, ")

@@ -72,7 +72,7 @@ def test_images_of_different_sizes_refused(tmp_path, shots):
     (["--board", "9by6", "--square-m", "0.03"], "not COLSxROWS"),
     (["--board", "9x6", "--square-m", "-1"], "not a positive length"),
     (["--board", "9x6", "--square-m", "0.03", "--pattern", "circles"], "'circles' is not one of 'chessboard', 'charuco'"),
-    (["--board", "7x5", "--square-m", "0.04", "--pattern", "charuco"], "needs the marker side"),
+    (["--board", "7x5", "--square-m", "0.04", "--pattern", "charuco"], "needs the side of its markers"),
 ])
 def test_bad_options_are_one_line_exit_2(tmp_path, shots, args, message):
     res = runner.invoke(app, ["calibrate", str(shots), "-o", str(tmp_path / "c.yaml"), *args])

