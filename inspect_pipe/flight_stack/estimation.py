@@ -52,6 +52,7 @@ class Source(enum.Enum):
 
     BOTTOM_FLOW = "bottom flow"
     FRONT_FLOW = "front flow"
+    BOTH_FLOWS = "bottom flow and front flow"
     FRONT_RANGE_RATE = "front sonar derivative"
     BOTTOM_SONAR = "bottom sonar (the TeraRanger below its clamp zone)"
     TERARANGER = "TeraRanger"
@@ -75,9 +76,12 @@ class Feeds:
 #: Table I, mode by mode: which measurement feeds which state (docs/flight.md). The paper's alarm
 #: modes (-1, -2) set vx = vy = 0; here the speed observers carry the speeds on with the IMU and the
 #: horizontal sonars' range rates correct them where they hear a wall (``range_rates.SonarRangeRates.correct``).
+#: In mode 1 both PX4Flows see the lateral speed, and both readings are measurements of it (the
+#: paper takes the bottom one's): each unit's gyro bias leaves bias x range in its speed, and the
+#: front one, a metre from the inspected wall, half as much as the bottom one two metres up.
 TABLE_I: dict[EstimationMode, Feeds] = {
     EstimationMode.BOTTOM: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.HEIGHT_RATE),
-    EstimationMode.BOTTOM_FRONT: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTTOM_FLOW, Source.FRONT_FLOW),
+    EstimationMode.BOTTOM_FRONT: Feeds(Source.BOTTOM_SONAR, Source.BOTTOM_FLOW, Source.BOTH_FLOWS, Source.FRONT_FLOW),
     EstimationMode.TOF_FRONT: Feeds(Source.TERARANGER, Source.FRONT_RANGE_RATE, Source.FRONT_FLOW, Source.FRONT_FLOW),
     EstimationMode.FRONT: Feeds(Source.INTEGRATED, Source.FRONT_RANGE_RATE, Source.FRONT_FLOW, Source.FRONT_FLOW),
     EstimationMode.ALARM_TOF: Feeds(Source.TERARANGER, Source.RANGE_RATES, Source.RANGE_RATES, Source.HEIGHT_RATE_AND_VAL),
@@ -277,6 +281,8 @@ class MAVStateUpdater:
                 fnoise = self._flow_noise(bs.range_m * scale, bflow.quality)  # type: ignore[union-attr,operator]
                 ox.correct(bflow.vx_m_s * scale, fnoise, learn_bias=not clamped)
                 oy.correct(bflow.vy_m_s * scale, fnoise, learn_bias=not clamped)
+            if feeds.vy is Source.BOTH_FLOWS and fflow is not None and self._ledger.new("front_flow_vy", fflow.stamp_s):
+                oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m, fflow.quality))  # type: ignore[union-attr,arg-type]
         elif feeds.vx is Source.FRONT_RANGE_RATE:
             assert fflow is not None
             # Modes 2 and 3: vx is the front sonar's range rate (the slope of its last samples, as in

@@ -38,11 +38,12 @@ def test_table1_mode_from_sensor_set(bottom_px, bottom_tof, front_px, mode):
 
 def test_table1_rows_say_which_measurement_feeds_each_state_as_the_paper_does():
     # Table I of the paper, modes 0-3 (height, vx, vy, vz); the alarm modes' zeros are replaced
-    # by IMU-carried speeds corrected by range rates, and their vertical speed is a '+val' descent
+    # by IMU-carried speeds corrected by range rates, and their vertical speed is a '+val' descent;
+    # mode 1's lateral speed takes both flows (the paper: the bottom one's)
     S = Source
     paper = {
         0: (S.BOTTOM_SONAR, S.BOTTOM_FLOW, S.BOTTOM_FLOW, S.HEIGHT_RATE),
-        1: (S.BOTTOM_SONAR, S.BOTTOM_FLOW, S.BOTTOM_FLOW, S.FRONT_FLOW),
+        1: (S.BOTTOM_SONAR, S.BOTTOM_FLOW, S.BOTH_FLOWS, S.FRONT_FLOW),
         2: (S.TERARANGER, S.FRONT_RANGE_RATE, S.FRONT_FLOW, S.FRONT_FLOW),
         3: (S.INTEGRATED, S.FRONT_RANGE_RATE, S.FRONT_FLOW, S.FRONT_FLOW),
     }
@@ -92,8 +93,25 @@ def test_mode1_uses_bottom_flow_horizontally_and_front_flow_vertically():
         t = 1.0 + 0.02 * k
         est, clearance = upd.update(t, _meas(t, front_range=2.0 - 0.3 * (t - 1.0)))
     assert est.mode == EstimationMode.BOTTOM_FRONT
-    assert (est.vx_m_s, est.vy_m_s, est.vz_m_s) == pytest.approx((0.3, -0.1, 0.05), abs=2e-3)
+    # vx from the bottom flow, vz from the front flow; vy from both: the bottom flow's -0.10 at 1.5 m
+    # and the front flow's -0.09 at 1.85-2.0 m, each of speed noise 0.1 m/s there, so their mean
+    assert (est.vx_m_s, est.vz_m_s) == pytest.approx((0.3, 0.05), abs=2e-3)
+    assert est.vy_m_s == pytest.approx(-0.095, abs=2e-3)
     assert clearance.front_m is not None
+
+
+def test_mode1_lateral_speed_weighs_each_flow_by_the_range_it_sees():
+    # GIVEN mode 1 with the two flows disagreeing on vy by 0.04 m/s: the bottom one 4 m up (speed
+    # noise 0.05 rad/s x 4 m = 0.2 m/s), the front one 1 m from the wall (noise floored at 0.1 m/s)
+    upd = MAVStateUpdater()
+    for k in range(100):
+        t = 1.0 + 0.02 * k
+        m = _meas(t, height=4.0, front_range=1.0, vx=0.0, vy=-0.10, vz=0.0)  # ranges held: no motion along them
+        m = dataclasses.replace(m, front_flow=dataclasses.replace(m.front_flow, vy_m_s=m.front_flow.vy_m_s - 0.05))  # -0.14, its jitter kept
+        est, _ = upd.update(t, m)
+    # THEN the estimate is their weighted mean, 4:1 towards the nearer wall's: -0.132
+    assert est.mode == EstimationMode.BOTTOM_FRONT
+    assert est.vy_m_s == pytest.approx(-0.10 * 0.2 - 0.14 * 0.8, abs=3e-3)
 
 
 def test_stale_sensor_is_not_available():
