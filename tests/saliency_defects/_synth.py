@@ -5,6 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from inspect_pipe.saliency_defects import _onnx_detect as od
+from inspect_pipe.saliency_defects import _onnx_train as ot
+
 
 def _smooth_noise(rng: np.random.Generator, shape, sigma: float) -> np.ndarray:
     n = rng.standard_normal(shape).astype(np.float32)
@@ -59,3 +62,25 @@ def pavement_with_cracks(
     g = cv2.GaussianBlur(g.astype(np.float32), (0, 0), 0.6)
     img = np.clip(g, 0, 255).astype(np.uint8)
     return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR), mask
+
+
+def tiny_items(seed):
+    """The onnx training's items (``_onnx_train._Item``): a few 64 x 64 synthetic images per
+    class, a bright square (corrosion, surface) or line (crack)."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c in od.CLASSES:
+        items = []
+        for i in range(3):
+            rgb = rng.integers(60, 120, (64, 64, 3), dtype=np.uint8)
+            gt = np.zeros((64, 64), bool)
+            if c == "crack":
+                gt[10 + 10 * i, 5:60] = True
+            else:
+                gt[16:40, 10 + 5 * i:34 + 5 * i] = True
+            rgb[gt] = (200, 90, 40)
+            it = ot._Item(c, f"{c}{i}", rgb, gt)
+            it.pos = np.argwhere(gt).astype(np.int32)
+            items.append(it)
+        out[c] = items
+    return out

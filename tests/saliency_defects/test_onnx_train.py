@@ -14,6 +14,8 @@ from inspect_pipe.saliency_defects import _onnx_train as ot
 from inspect_pipe.saliency_defects._core import SET_OF_CLASS, to_u8
 from inspect_pipe.saliency_defects._datasets import split_of
 
+from ._synth import tiny_items as _tiny_items
+
 
 def test_network_is_compact_and_keeps_the_input_size():
     net = ot.build_net()
@@ -74,27 +76,6 @@ def test_export_round_trip_matches_torch_and_passes_the_metadata_checks(tmp_path
     for i, c in enumerate(od.CLASSES):
         assert got[c].shape == (75, 109)
         assert np.abs(got[c].astype(int) - to_u8(ref[i]).astype(int)).max() <= 1
-
-
-def _tiny_items(seed):
-    """A few 64 x 64 synthetic images per class: a bright square (corrosion, surface) or line (crack)."""
-    rng = np.random.default_rng(seed)
-    out = {}
-    for c in od.CLASSES:
-        items = []
-        for i in range(3):
-            rgb = rng.integers(60, 120, (64, 64, 3), dtype=np.uint8)
-            gt = np.zeros((64, 64), bool)
-            if c == "crack":
-                gt[10 + 10 * i, 5:60] = True
-            else:
-                gt[16:40, 10 + 5 * i:34 + 5 * i] = True
-            rgb[gt] = (200, 90, 40)
-            it = ot._Item(c, f"{c}{i}", rgb, gt)
-            it.pos = np.argwhere(gt).astype(np.int32)
-            items.append(it)
-        out[c] = items
-    return out
 
 
 def test_finetune_is_reproducible_and_keeps_phase_one_unless_validation_improves(tmp_path):

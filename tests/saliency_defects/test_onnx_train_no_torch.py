@@ -9,26 +9,7 @@ from inspect_pipe.saliency_defects import _onnx_detect as od
 from inspect_pipe.saliency_defects import _onnx_train as ot
 from inspect_pipe.saliency_defects._datasets import split_of
 
-
-def _tiny_items(seed):
-    """A few 64 x 64 synthetic images per class: a bright square (corrosion, surface) or line (crack)."""
-    rng = np.random.default_rng(seed)
-    out = {}
-    for c in od.CLASSES:
-        items = []
-        for i in range(3):
-            rgb = rng.integers(60, 120, (64, 64, 3), dtype=np.uint8)
-            gt = np.zeros((64, 64), bool)
-            if c == "crack":
-                gt[10 + 10 * i, 5:60] = True
-            else:
-                gt[16:40, 10 + 5 * i:34 + 5 * i] = True
-            rgb[gt] = (200, 90, 40)
-            it = ot._Item(c, f"{c}{i}", rgb, gt)
-            it.pos = np.argwhere(gt).astype(np.int32)
-            items.append(it)
-        out[c] = items
-    return out
+from ._synth import tiny_items as _tiny_items
 
 
 def test_validation_images_are_a_part_of_train_never_eval():
