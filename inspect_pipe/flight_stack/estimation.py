@@ -182,7 +182,7 @@ class MAVStateUpdater:
         feeds = TABLE_I[mode]
 
         bflow = m.bottom_flow if feeds.vx is Source.BOTTOM_FLOW else None
-        fflow = m.front_flow if Source.FRONT_FLOW in (feeds.vy, feeds.vz) else None
+        fflow = m.front_flow if {Source.FRONT_FLOW, Source.BOTH_FLOWS} & {feeds.vy, feeds.vz} else None
         if m.imu is not None and (bflow is not None or fflow is not None):
             bflow, fflow = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, bflow, fflow)
         # Each IMU reading is integrated once, over the time since the last one integrated: a
@@ -290,7 +290,7 @@ class MAVStateUpdater:
             # translation (pushed while yawing, the rate said 0.2 m/s while the vehicle sped up to
             # 0.77 m/s). While turning, vx is carried on with the IMU alone.
             self.rates.correct(now, self._yaw, self.obs, axes=(0,))
-            if self._ledger.new("front_flow", fflow.stamp_s):
+            if self._ledger.new("front_flow_vy", fflow.stamp_s):  # one key for this use in every mode
                 oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m, fflow.quality))  # type: ignore[union-attr,arg-type]
         else:
             self.rates.correct(now, self._yaw, self.obs)

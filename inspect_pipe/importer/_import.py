@@ -178,9 +178,9 @@ def import_footage(
     t0 = time.perf_counter()
     track = read_flight_log(log_path)
     secs["log"] = time.perf_counter() - t0
-    if track.skipped[0]:
-        note(f"{log_path}: {track.skipped[0]} garbled stretch(es), {track.skipped[1]} bytes, skipped; the "
-             "messages around them were read (the sweep's meta records it)")
+    if track.skipped:
+        note(f"{log_path}: {track.skipped} garbled stretch(es) skipped, with the messages they cut; the others "
+             "were read (the sweep's meta records it)")
     camera = _camera(Path(camera_path) if camera_path is not None else None, footage)
     base = track.utc_offset_s or 0.0
     tc = np.array([f.t_camera_s for f in frames]) - base  # camera times on the log's clock, before the offset
@@ -206,10 +206,12 @@ def import_footage(
         a, b, s = image_motion(imgs, list(tc))
         align = find_offset(track, a, b, s, search=search)
         if align.correlation is None and align.pairs >= 5:  # the images registered; the log holds too little of them
-            raise InputError(str(log_path), f"covers {track.end_s - track.start_s:.1f} s, too little of the footage's "
-                             f"{tc[-1] - tc[0]:.1f} s to find the camera clock offset (half of the frames must fall "
-                             "inside it at every offset searched)", "give the whole log of this flight, or --time-offset S, the camera "
-                             "time minus the log time")
+            lags = np.arange(search[0], search[1] + 0.05, 0.05)
+            most = max(int(((tc - L >= track.start_s) & (tc - L <= track.end_s)).sum()) for L in lags)
+            raise InputError(str(log_path), f"covers {track.end_s - track.start_s:.1f} s of its clock, and at most {most} of the "
+                             f"{len(frames)} frames fall inside it at any camera clock offset searched ({search[0]:+.1f} .. "
+                             f"{search[1]:+.1f} s), too few to find the offset", "give the whole log of this flight, or "
+                             "--time-offset S, the camera time minus the log time")
         if align.correlation is None:
             raise InputError(str(frames_path), f"only {align.pairs} pairs of consecutive frames could be registered, too "
                              "few to find the camera clock offset", "give --time-offset S (camera time minus log time)")

@@ -61,8 +61,8 @@ class FlightTrack:
     landed: tuple[np.ndarray, list[str]] | None = None  # (t, fsm name: landed, taking_off, flying, landing)
     utc_offset_s: float | None = None  # UTC (unix s) = log time + this
     utc_source: str | None = None
-    #: Garbled stretches the reader skipped (a tlog's bytes that are no MAVLink message): (count, bytes).
-    skipped: tuple[int, int] = (0, 0)
+    #: Garbled stretches the reader skipped (a tlog's bytes that are no MAVLink message).
+    skipped: int = 0
 
     @property
     def start_s(self) -> float:
@@ -82,7 +82,7 @@ class FlightTrack:
             "position_samples": int(len(self.t_pos)), "attitude_samples": int(len(self.t_att)),
             "range_sensors": {k: int(len(v[0])) for k, v in self.ranges.items()},
             "landed_state": self.landed is not None, "utc_offset_s": self.utc_offset_s, "utc_source": self.utc_source,
-            **({"skipped_garbled": {"stretches": self.skipped[0], "bytes": self.skipped[1]}} if self.skipped[0] else {}),
+            **({"skipped_garbled_stretches": self.skipped} if self.skipped else {}),
         }
 
 
@@ -225,7 +225,7 @@ def _read_tlog(path: Path) -> FlightTrack:
     t_pos, pos, vel, t_att, eul, landed_t, landed_s = [], [], [], [], [], [], []
     ranges: dict[str, tuple[list, list]] = {}
     sys_time, stamp_off = [], []
-    n = bad_runs = bad_bytes = 0
+    n = bad_runs = 0
     vehicle: int | None = None  # MAVLink system id of the autopilot (a tlog also holds the GCS, a companion...)
     try:
         while True:
@@ -235,8 +235,7 @@ def _read_tlog(path: Path) -> FlightTrack:
                 break
             kind = m.get_type()
             if kind == "BAD_DATA":  # bytes that are no message (a cut or damaged stretch): skipped, counted
-                bad_runs += 1
-                bad_bytes += len(getattr(m, "data", b"") or b"")
+                bad_runs += 1  # (its length is not known: pymavlink skips on to the next timestamp silently)
                 continue
             n += 1
             src = m.get_srcSystem()
@@ -294,7 +293,7 @@ def _read_tlog(path: Path) -> FlightTrack:
     tr = _track(path, "tlog", t_pos, np.asarray(pos, float).reshape(-1, 3), np.asarray(vel, float).reshape(-1, 3), t_att,
                 quat_from_euler(e[:, 0], e[:, 1], e[:, 2]), {k: (np.array(v[0]), np.array(v[1])) for k, v in ranges.items()},
                 landed, utc_off, utc_src, "LOCAL_POSITION_NED", "ATTITUDE")
-    return replace(tr, skipped=(bad_runs, bad_bytes)) if bad_runs else tr
+    return replace(tr, skipped=bad_runs) if bad_runs else tr
 
 
 # --------------------------------------------------------------------------- DataFlash

@@ -58,18 +58,18 @@ def run_mosaic_folder(
     camera=None,
 ) -> MosaicOutput:
     """Mosaic a folder of images; with ``camera`` (a calibrated ``CameraModel``) its frames are
-    undistorted, the mosaic rectified with its K, and mosaic.json records the camera used. Written
-    as ``_publish.staged`` writes: a result with problems never replaces a good earlier mosaic."""
-    from ._publish import staged
+    undistorted, the mosaic rectified with its K, and mosaic.json records the camera used. The
+    folder is checked before anything is written; the mosaic is written as ``_publish.staged``
+    writes it: a result with problems never replaces a good earlier mosaic."""
+    from ._publish import check_out, staged
 
-    return staged(out_dir, lambda d: _mosaic_folder_into(folder, d, params=params, progress=progress, camera=camera))
-
-
-def _mosaic_folder_into(folder: Path, out_dir: Path, *, params: MosaicParams, progress, camera) -> MosaicOutput:
+    check_out(out_dir)
+    extra = None
     if camera is None:
-        return run_mosaic(FolderSource(folder), out_dir, params=params, progress=progress)
-    source = UndistortedFolderSource(folder, camera)
-    params = replace(params, register=replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px))
-    extra = {"input": {"kind": "folder", "path": str(folder), "camera": source.camera.to_json()},
-             "frame_size_wh": [source.camera.width, source.camera.height]}
-    return run_mosaic(source, Path(out_dir), params=params, progress=progress, extra=extra)
+        source = FolderSource(folder)
+    else:
+        source = UndistortedFolderSource(folder, camera)
+        params = replace(params, register=replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px))
+        extra = {"input": {"kind": "folder", "path": str(folder), "camera": source.camera.to_json()},
+                 "frame_size_wh": [source.camera.width, source.camera.height]}
+    return staged(out_dir, lambda d: run_mosaic(source, d, params=params, progress=progress, extra=extra))

@@ -222,18 +222,13 @@ def run_mosaic_sweep(
     nothing could be placed. ``verify`` checks every file against COMPLETE's sha256 first.
     ``survey_plan`` (``inspect_pipe.ship.SurveyPlan``) overrides the plan stored in the sweep.
     Written as ``_publish.staged`` writes: a result with problems never replaces a good earlier mosaic."""
-    from ._publish import staged
-
-    return staged(out_dir, lambda d: _mosaic_sweep_into(sweep_dir, d, params=params, progress=progress, verify=verify,
-                                                         survey_plan=survey_plan, camera=camera))
-
-
-def _mosaic_sweep_into(sweep_dir: Path, out_dir: Path, *, params: MosaicParams, progress, verify: bool, survey_plan,
-                       camera) -> MosaicOutput:
     from dataclasses import replace
 
     from inspect_pipe.capture import read_sweep
 
+    from ._publish import check_out, staged
+
+    check_out(out_dir)
     sweep = read_sweep(sweep_dir, verify=verify)
     if survey_plan is not None:  # --survey: the surveyed wall and the take-off tie, over what the sweep stored
         sweep = replace(sweep, meta=replace(sweep.meta, survey_plan=survey_plan))
@@ -252,6 +247,11 @@ def _mosaic_sweep_into(sweep_dir: Path, out_dir: Path, *, params: MosaicParams, 
                              "camera": sweep.meta.camera.to_json()}}
     if sweep.problems:
         extra["input"]["skipped"] = [str(p) for p in sweep.problems]
+    return staged(out_dir, lambda d: _sweep_mosaic_into(sweep, source, d, params, progress, extra))
+
+
+def _sweep_mosaic_into(sweep, source: SweepSource, out_dir: Path, params: MosaicParams, progress, extra: dict) -> MosaicOutput:
+    """The mosaic of a read, checked sweep into ``out_dir`` (the staging folder), placed on its wall."""
     result = run_mosaic(source, out_dir, params=params, progress=progress, extra=extra)
     main = {f: h for f, h in result.H.items() if result.group_of[f] == 0}
     take_off = take_off_frames(source, main) if main else {}  # for the wall map's fit only, not blended

@@ -1,14 +1,17 @@
 """Writing a mosaic so that a run on bad input never replaces a good earlier one.
 
-The mosaic step writes into a staging folder beside ``OUT``; the files then replace ``OUT``'s
-mosaic files (``mosaic.json``, ``mosaic.png``, ``mosaic_group<k>.png``; nothing else in ``OUT``
-is touched), ``mosaic.json`` last, so a crash mid-way leaves the earlier ``mosaic.json`` naming
-images that are all there or the new one. A result with bad-input problems (unreadable or
-truncated images, no overlap: ``MosaicOutput.problems``) is not published over an earlier mosaic
-made without problems (its ``mosaic.json`` records ``problems: []``): that one is kept and the
-result says so (``published`` False). Over nothing, or over an earlier result with problems of
-its own, a result with problems is published, as ``mosaic`` documents ("after writing whatever
-could be mosaicked").
+The callers check their input first (a missing or empty folder, a sweep without readable frames:
+nothing is written). The mosaic step then writes into a staging folder inside ``OUT``
+(``OUT/.staging-*``: the same file system, whatever ``OUT`` links to), and its files replace
+``OUT``'s mosaic files (``mosaic.json``, ``mosaic.png``, ``mosaic_group<k>.png``; nothing else in
+``OUT`` is touched): the earlier ``mosaic.json`` is removed first and the new one moved in last, so
+a crash in between leaves no ``mosaic.json`` (no mosaic, which the next run replaces), never one
+beside images that are not its own. A result with bad-input problems (unreadable or truncated
+images, no overlap: ``MosaicOutput.problems``) is not published over an earlier mosaic made without
+problems (its ``mosaic.json`` records ``problems: []`` and every image it names is whole): that
+one is kept and the result says so (``published`` False). Over nothing, or over an earlier result
+with problems of its own, a result with problems is published, as ``mosaic`` documents ("after
+writing whatever could be mosaicked").
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from pathlib import Path
 from typing import Callable
 
 from inspect_pipe._files import write_json
+from inspect_pipe._images import truncation
+from inspect_pipe.errors import InputError
 
 from ._mosaic import MosaicOutput
 
@@ -29,14 +34,22 @@ from ._mosaic import MosaicOutput
 MOSAIC_FILES = ("mosaic.json", "mosaic.png", "mosaic_group*.png")
 
 
-def staged(out_dir: Path, make: Callable[[Path], MosaicOutput]) -> MosaicOutput:
-    """``make(staging)`` writes a mosaic into a fresh staging folder; its files then replace
-    ``out_dir``'s mosaic files, unless the result has problems and ``out_dir`` holds a mosaic made
-    without any (kept; the result's ``published`` is False and its first problem says so). The
-    staging folder is removed in every case."""
+def check_out(out_dir: Path) -> None:
+    """Before any work: ``out_dir`` must be a folder or not there yet."""
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=out_dir.parent))
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(str(out_dir), "a file is there, where the mosaic's folder is written", "give another -o, or move the file")
+
+
+def staged(out_dir: Path, make: Callable[[Path], MosaicOutput]) -> MosaicOutput:
+    """``make(staging)`` writes a mosaic into a fresh staging folder inside ``out_dir``; its files
+    then replace ``out_dir``'s mosaic files, unless the result has problems and ``out_dir`` holds a
+    whole mosaic made without any (kept; the result's ``published`` is False and its first problem
+    says so). The staging folder is removed in every case."""
+    out_dir = Path(out_dir)
+    check_out(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=out_dir))
     try:
         result = make(staging)
         doc_path = staging / "mosaic.json"
@@ -45,9 +58,10 @@ def staged(out_dir: Path, make: Callable[[Path], MosaicOutput]) -> MosaicOutput:
             doc["problems"] = list(result.problems)
             write_json(doc_path, doc)
         if result.problems and _clean_earlier(out_dir):
-            problems = [f"{result.problems[0]}; {out_dir} keeps its earlier mosaic, made without problems "
-                        "(nothing of this run written)"] + result.problems[1:]
-            return dataclasses.replace(result, out_dir=out_dir, images=[], problems=problems, published=False)
+            first = result.problems[0].replace(", listed in mosaic.json)", ")")  # this run's mosaic.json is not written
+            problems = [f"{first}; {out_dir} keeps its earlier mosaic, made without problems (nothing of this run written)"]
+            return dataclasses.replace(result, out_dir=out_dir, images=[], problems=problems + result.problems[1:],
+                                       published=False)
         _publish(staging, out_dir)
         return dataclasses.replace(result, out_dir=out_dir, images=[out_dir / p.name for p in result.images])
     finally:
@@ -55,25 +69,26 @@ def staged(out_dir: Path, make: Callable[[Path], MosaicOutput]) -> MosaicOutput:
 
 
 def _clean_earlier(out_dir: Path) -> bool:
-    """Whether ``out_dir`` holds a mosaic whose run recorded no problems (one written before
-    problems were recorded counts as clean: it is kept rather than lost)."""
+    """Whether ``out_dir`` holds a whole mosaic whose run recorded no problems: its ``mosaic.json``
+    reads, names a mosaic, records none (one written before problems were recorded counts as
+    clean), and every image it names is there and not cut short."""
     try:
         doc = json.loads((out_dir / "mosaic.json").read_text())
     except (OSError, ValueError):
         return False
-    return isinstance(doc, dict) and doc.get("mosaic") is not None and not doc.get("problems")
+    if not isinstance(doc, dict) or doc.get("mosaic") is None or doc.get("problems"):
+        return False
+    names = {doc["mosaic"]} | {g.get("image") for g in doc.get("groups") or [] if isinstance(g, dict)}
+    return all(isinstance(n, str) and not truncation(out_dir / n) for n in names if n is not None)
 
 
 def _publish(staging: Path, out_dir: Path) -> None:
-    """Move the staged files into ``out_dir`` (images first, then ``mosaic.json``), then remove the
-    earlier mosaic's images the new one does not have: at every moment ``mosaic.json`` names
-    images that are there."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Remove the earlier ``mosaic.json``, move the staged images in, then the new ``mosaic.json``,
+    then remove the earlier images the new mosaic does not have."""
     new = {p.name for p in staging.iterdir()}
+    (out_dir / "mosaic.json").unlink(missing_ok=True)
     for p in sorted(staging.iterdir(), key=lambda p: p.name == "mosaic.json"):  # mosaic.json last
         os.replace(p, out_dir / p.name)
-    if "mosaic.json" not in new:
-        (out_dir / "mosaic.json").unlink(missing_ok=True)
     for pattern in MOSAIC_FILES:
         for old in out_dir.glob(pattern):
             if old.name not in new:

@@ -73,6 +73,7 @@ def run_pipeline(
     store = RunStore(run_dir)
     store.root.mkdir(parents=True, exist_ok=True)
     steps = plan(store, cfg, force=force, rerun_from=rerun_from)
+    had_run = store.run_exists()
     doc = store.load_run()
     before = json.loads(json.dumps(doc))  # what run.json said, for a step that keeps the earlier run
     doc["input"] = {"spec": cfg.input, "kind": kind,
@@ -96,8 +97,10 @@ def run_pipeline(
             else:
                 step.run(store, cfg, progress)
         except EarlierRunKept:
-            if before.get("steps") or before.get("input"):
+            if had_run:
                 store.save_run(before)
+            else:
+                store.run_json.unlink(missing_ok=True)
             raise
         dt = time.monotonic() - t0
         store.mark_step(name, {"options": step_options(step, cfg), "seconds": round(dt, 3),

@@ -188,6 +188,10 @@ def _redo_hint(path: Path) -> str:
     step = _WRITTEN_BY.get((path.parent.name, path.name))
     if step is None:
         return "re-create it with the command that wrote it"
+    if step == "report":  # the register holds the surveyor's review: the report step reads it, never rewrites it blind
+        return (f"the register is damaged: restore it from a copy, or move {path} and its defects.csv aside and run "
+                f"inspect-pipe run INPUT -o {path.parent.parent} --rerun-from report for a new one (the review's "
+                f"decisions stay in {path.parent / 'audit.jsonl'})")
     return f"the file is damaged: inspect-pipe run INPUT -o {path.parent.parent} --rerun-from {step} writes it again"
 
 

@@ -166,3 +166,24 @@ def test_bad_input_never_replaces_a_good_earlier_mosaic(tmp_path):
     assert runner.invoke(app, ["mosaic", str(apart), "-o", str(partial), "-q"]).exit_code == 2
     doc = json.loads((partial / "mosaic.json").read_text())
     assert doc["mosaic"] is None and sorted(p.name for p in partial.iterdir()) == ["mosaic.json"]
+
+
+def test_bad_input_writes_nothing_and_a_broken_earlier_mosaic_is_not_kept(tmp_path):
+    # GIVEN a missing input folder WHEN mosaicked into a path whose parents do not exist THEN nothing is made
+    res = runner.invoke(app, ["mosaic", str(tmp_path / "none"), "-o", str(tmp_path / "a" / "b" / "out")])
+    assert res.exit_code == 2 and not (tmp_path / "a").exists()
+    # GIVEN an earlier clean mosaic whose image was since cut short on disk
+    good = _copy(tmp_path)
+    out = tmp_path / "out"
+    assert runner.invoke(app, ["mosaic", str(good), "-o", str(out), "-q"]).exit_code == 0
+    png = (out / "mosaic.png").read_bytes()
+    (out / "mosaic.png").write_bytes(png[: len(png) // 2])
+    # WHEN a run with a truncated frame comes THEN its partial result replaces the broken one (nothing whole to keep)
+    data = (good / "frame_0003.jpg").read_bytes()
+    (good / "frame_0003.jpg").write_bytes(data[: len(data) // 2])
+    res = runner.invoke(app, ["mosaic", str(good), "-o", str(out), "-q"])
+    assert res.exit_code == 2 and "keeps its earlier mosaic" not in res.output
+    doc = json.loads((out / "mosaic.json").read_text())
+    assert len(doc["frames"]) == 12 and len(doc["problems"]) == 1
+    assert cv2.imread(str(out / "mosaic.png"), cv2.IMREAD_UNCHANGED) is not None
+    assert [p.name for p in out.iterdir() if p.name.startswith(".staging")] == []

@@ -201,8 +201,8 @@ def test_a_log_cut_short_is_named_not_the_images(flight, tmp_path):
     cut = tmp_path / "cut.tlog"
     cut.write_bytes(raw[: int(0.3 * len(raw))])
     msg = _run_bad(tmp_path, flight / "DCIM", cut)
-    # THEN the line names the log and says how much of the footage it covers
-    assert str(cut) in msg and "too little of the footage's" in msg and "DCIM" not in msg
+    # THEN the line names the log and says how few frames it can hold at any offset searched
+    assert str(cut) in msg and "frames fall inside it at any camera clock offset searched" in msg and "DCIM" not in msg
 
 
 def test_garbled_bytes_in_a_tlog_are_skipped_and_said(flight, tmp_path):
@@ -215,9 +215,12 @@ def test_garbled_bytes_in_a_tlog_are_skipped_and_said(flight, tmp_path):
     res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(bad), "-o", str(tmp_path / "sw")])
     # THEN the import succeeds, says the log had garbled stretches, and the sweep's meta records them
     assert res.exit_code == 0, res.output
-    assert f"{bad}: " in res.output and "garbled stretch" in res.output
-    log = read_sweep(tmp_path / "sw").meta.source["flight_log"]
-    assert log["skipped_garbled"]["stretches"] >= 1 and log["skipped_garbled"]["bytes"] > 0
+    assert f"{bad}: 1 garbled stretch(es) skipped" in res.output
+    assert read_sweep(tmp_path / "sw").meta.source["flight_log"]["skipped_garbled_stretches"] == 1
+    # AND the log as it was has none
+    res = CliRunner().invoke(app, ["import", str(flight / "DCIM"), "--log", str(flight / "f.tlog"), "-o", str(tmp_path / "sw2")])
+    assert res.exit_code == 0 and "garbled stretch" not in res.output
+    assert "skipped_garbled_stretches" not in read_sweep(tmp_path / "sw2").meta.source["flight_log"]
 
 
 def test_a_video_the_decoder_refuses(flight, tmp_path):
