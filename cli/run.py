@@ -127,9 +127,7 @@ def warn_missing(sweep_dir: Path, plan, echo=None, camera=None) -> None:
     from inspect_pipe.pipeline._readiness import sweep_readiness
 
     sweep = read_sweep(sweep_dir)
-    if not sweep.frames:  # nothing to run on: the one error, not warnings about what the frames lack
-        why = f" ({sweep.problems[0]})" if sweep.problems else ""
-        raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
+    sweep.require_frames()  # nothing to run on: the one error, not warnings about what the frames lack
     for f in sweep_readiness(sweep, plan):
         if not f.ok and not (camera is not None and f.what == "calibration"):
             (echo or note)(f"warning: {sweep_dir}: {f.what}: {f.detail}")

@@ -231,6 +231,12 @@ class Sweep:
         if self.problems:
             raise self.problems[0]
 
+    def require_frames(self) -> None:
+        """One-line :class:`InputError` for a sweep with no readable frame (nothing to mosaic)."""
+        if not self.frames:
+            why = f" ({self.problems[0]})" if self.problems else ""
+            raise InputError(str(Path(self.path) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
+
 
 # =========================================================================== reading
 

@@ -10,7 +10,6 @@ from typing import Callable
 import numpy as np
 
 import inspect_pipe
-from inspect_pipe.errors import InputError
 
 from ._blas import with_one_blas_thread
 from ._blend import BlendParams, CanvasTooLarge, render
@@ -237,9 +236,7 @@ def run_mosaic_sweep(
 
         fitted = fit_camera(camera, sweep.meta.width, sweep.meta.height, frames=f"the frames of {sweep_dir}")
         sweep = replace(sweep, meta=replace(sweep.meta, camera=fitted))
-    if not sweep.frames:
-        why = f" ({sweep.problems[0]})" if sweep.problems else ""
-        raise InputError(str(Path(sweep_dir) / "frames.jsonl"), f"no readable frames{why}", "nothing to mosaic")
+    sweep.require_frames()
     source = SweepSource(sweep)
     reg_params = replace(params.register, focal_px=source.focal_px, principal_px=source.principal_px)
     params = replace(params, register=reg_params)
