@@ -354,7 +354,8 @@ class MAVStateUpdater:
         slowed from 0.2 to 0.09 m/s within 7 s (alarm_none_descent)."""
         oz, noise = self.obs[2], self.p.speed_noise_m_s
         if vz_flow is not None:
-            oz.correct(vz_flow, self._flow_noise(m.front_sonar.range_m, m.front_flow.quality))  # type: ignore[union-attr,arg-type]
+            if self._ledger.new("front_flow_vz", m.front_flow.stamp_s):  # type: ignore[union-attr]
+                oz.correct(vz_flow, self._flow_noise(m.front_sonar.range_m, m.front_flow.quality))  # type: ignore[union-attr,arg-type]
         elif feeds.vz in (Source.HEIGHT_RATE, Source.HEIGHT_RATE_AND_VAL):
             oz.correct(self.height.rate_m_s, noise, learn_bias=False)
         if feeds.vz is Source.HEIGHT_RATE_AND_VAL:
