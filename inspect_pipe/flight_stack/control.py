@@ -241,8 +241,11 @@ class FlightController:
             keep = max(0.0, 1.0 - p.speed_ki_1_s2 / p.speed_kp_1_s * dt)
             self.pid_vx.integral *= keep
             self.pid_vy.integral *= keep
-        ax = self.pid_vx.update(cmd.vx_m_s - est.vx_m_s, dt, freeze=freeze_xy, integrate=rx - est.vx_m_s)
-        ay = self.pid_vy.update(cmd.vy_m_s - est.vy_m_s, dt, freeze=freeze_xy, integrate=ry - est.vy_m_s)
+        # Where no sensor measures the speed (the alarm modes), an error the IMU's own noise could
+        # have made of the carried speed is left alone (``StateEstimate.speed_noise_band_m_s``).
+        bx, by, bz = est.speed_noise_band_m_s
+        ax = self.pid_vx.update(_beyond(cmd.vx_m_s - est.vx_m_s, bx), dt, freeze=freeze_xy, integrate=rx - est.vx_m_s)
+        ay = self.pid_vy.update(_beyond(cmd.vy_m_s - est.vy_m_s, by), dt, freeze=freeze_xy, integrate=ry - est.vy_m_s)
         ax += ff * cmd.vx_m_s
         ay += ff * cmd.vy_m_s
         mode = VerticalMode.HEIGHT if allow_height_hold and abs(cmd.vz_m_s) < 1e-6 else VerticalMode.SPEED
@@ -287,7 +290,7 @@ class FlightController:
             if self._vz_ref is None:
                 self._vz_ref = est.vz_m_s
             self._vz_ref += (cmd.vz_m_s - self._vz_ref) * min(1.0, p.vz_kp_1_s * dt)
-            az = self.pid_vz.update(cmd.vz_m_s - est.vz_m_s, dt, freeze=freeze_integrators,
+            az = self.pid_vz.update(_beyond(cmd.vz_m_s - est.vz_m_s, bz), dt, freeze=freeze_integrators,
                                     integrate=self._vz_ref - est.vz_m_s)
             trim = self.pid_vz.integral
         self.vertical_mode = mode

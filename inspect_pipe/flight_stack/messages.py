@@ -184,6 +184,11 @@ class StateEstimate:
     # autopilot's heading (x, y in m, yaw in rad); None without a heading. It drifts: good for
     # holding station over seconds, not for navigation.
     odometry: tuple[float, float, float] | None = None
+    # In the alarm modes, where no sensor measures the speeds: how far (m/s, x, y, z) the carried
+    # speeds may stray on the IMU's measured noise alone (``carried_noise_sigma`` standard
+    # deviations of its random walk since a measurement last held them); the speed loops leave an
+    # error within it alone. Zero where a sensor measures them.
+    speed_noise_band_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, slots=True)

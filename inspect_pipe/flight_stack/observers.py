@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["HeightEstimator", "RangeObserver", "RangeSlope", "SpeedObserver", "StuckCheck", "WhiteNoiseMeter"]
 
 
@@ -142,7 +144,7 @@ class SpeedObserver:
     # a reading; 0.1 s of the height's rate, which is offered every 50 Hz tick (modes 0 and -1)
     RESTART_AFTER = 5
 
-    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused", "imu_noise")
+    __slots__ = ("v", "b", "p00", "p01", "p11", "q_a", "q_b", "gate", "refused", "imu_noise", "walk_var")
 
     def __init__(self, *, accel_noise: float, bias_walk: float, gate: float) -> None:
         self.q_a, self.q_b, self.gate = accel_noise**2, bias_walk**2, gate
@@ -150,12 +152,16 @@ class SpeedObserver:
         self.p00, self.p01, self.p11 = self.V0, 0.0, self.B0
         self.refused = 0
         self.imu_noise = WhiteNoiseMeter()  # the IMU's white-noise variance along this axis, (m/s^2)^2
+        # Variance of the random walk the IMU's own white noise has put into ``v`` since the
+        # measurements last held it (m/s)^2: see :attr:`imu_walk_sd`.
+        self.walk_var = 0.0
 
     def predict(self, accel: float, dt: float) -> None:
         if dt <= 0.0:
             return
         self.imu_noise.add(accel, dt)
         self.v += (accel - self.b) * dt
+        self.walk_var += self.imu_noise.variance * dt * dt
         p00, p01, p11 = self.p00, self.p01, self.p11
         # a white noise of variance v per sample of length dt: density v * dt
         self.p00 = p00 - 2.0 * dt * p01 + dt * dt * p11 + (self.q_a + self.imu_noise.variance * dt) * dt
@@ -180,6 +186,7 @@ class SpeedObserver:
         self.refused = 0
         k0 = self.p00 / s
         self.v += k0 * y
+        self.walk_var *= (1.0 - k0) * (1.0 - k0)
         p00, p01 = self.p00, self.p01
         self.p00 = (1.0 - k0) * p00
         self.p01 = (1.0 - k0) * p01
@@ -201,6 +208,14 @@ class SpeedObserver:
         """Restart the speed at ``v`` (its variance too); the bias is kept."""
         self.v, self.p00, self.p01 = v, self.V0, 0.0
         self.refused = 0
+        self.walk_var = 0.0
+
+    @property
+    def imu_walk_sd(self) -> float:
+        """Standard deviation of what the IMU's own noise (as measured) has made of the carried
+        speed since the measurements last held it (m/s). Calm, the walk stays within 0.02 m/s over
+        2 s; under rotor vibration of 1.4 m/s^2 a tick it is 0.27 m/s."""
+        return math.sqrt(self.walk_var)
 
 
 class HeightEstimator:

@@ -93,6 +93,10 @@ class EstimationParams:
     alarm_slope_max_turn_rad: float = param(
         0.02, 0.0, 0.5, "rad", "alarm modes: range rates are not used while the heading turns more than this in their window"
     )
+    carried_noise_sigma: float = param(
+        1.0, 0.0, 10.0, "sigma", "alarm modes: the speed loops get the carried speeds less this many standard deviations "
+        "of the random walk the IMU's own measured noise has put into them since a measurement last held them"
+    )
     memory_keep_s: float = param(
         8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long without a measured horizontal speed "
         "(the alarm modes; 0: no memory)"
