@@ -225,10 +225,9 @@ class MAVStateUpdater:
         0.53 m past a wall's stop line (fresh seed 311 e1022; 1.4 m/s^2 a tick)."""
         k = self.p.carried_noise_sigma
         ox, oy, oz = self.obs
-        carried_xy = feeds.vx is Source.RANGE_RATES
         return (
-            k * ox.imu_walk_sd if carried_xy else 0.0,
-            k * oy.imu_walk_sd if carried_xy else 0.0,
+            k * ox.imu_walk_sd if feeds.vx is Source.RANGE_RATES else 0.0,
+            k * oy.imu_walk_sd if feeds.vy is Source.RANGE_RATES else 0.0,
             k * oz.imu_walk_sd if feeds.vz is Source.CARRIED_AND_VAL else 0.0,
         )
 

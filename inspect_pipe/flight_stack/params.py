@@ -94,8 +94,9 @@ class EstimationParams:
         0.02, 0.0, 0.5, "rad", "alarm modes: range rates are not used while the heading turns more than this in their window"
     )
     carried_noise_sigma: float = param(
-        1.0, 0.0, 10.0, "sigma", "alarm modes: the speed loops get the carried speeds less this many standard deviations "
-        "of the random walk the IMU's own measured noise has put into them since a measurement last held them"
+        1.0, 0.0, 10.0, "sigma", "alarm modes: a speed loop leaves alone an error within this many standard deviations "
+        "of the random walk the IMU's own measured noise has put into the carried speed since a measurement last held it "
+        "(1 against 2 on analysis seeds 309 and 311: 2 left real drifts unbraked, 14 episodes lost 5 cm of clearance)"
     )
     memory_keep_s: float = param(
         8.0, 0.0, 30.0, "s", "obstacle memory: an echo is forgotten after this long without a measured horizontal speed "
