@@ -220,9 +220,8 @@ class MAVStateUpdater:
     def _noise_band(self, feeds: Feeds) -> tuple[float, float, float]:
         """``StateEstimate.speed_noise_band_m_s``: for each speed that the mode carries with the IMU
         (no sensor of Table I's row measures it), ``carried_noise_sigma`` standard deviations of the
-        walk the IMU's measured noise has put into it. Chasing that walk, the speed loops tilted the
-        vehicle at random under rotor vibration: in a 2.9 s loss of every range sensor it drifted
-        0.53 m past a wall's stop line (fresh seed 311 e1022; 1.4 m/s^2 a tick)."""
+        walk the IMU's measured noise has put into it. Chasing that walk, the speed loops tilt the
+        vehicle at random under rotor vibration (docs/flight.md, Session 32)."""
         k = self.p.carried_noise_sigma
         ox, oy, oz = self.obs
         return (
@@ -253,11 +252,8 @@ class MAVStateUpdater:
         x observer's speed, corrected by each sample. It measures no speed itself: in modes 2 and 3
         the front sonar's range rate is a measurement of the x observer like any other
         (``_horizontal_speeds``), so one observer holds the speed and the accelerometer's bias
-        along x. Before, the range observer had its own rate and bias, fed the x observer its
-        rate every tick and had a single noisy flow reading replace that rate: with the bottom
-        flow's quality at its threshold on low texture (one reading in ten taken, 0.2 m/s of
-        noise), the rate swung 0.3-0.4 m/s off the truth, the bias learnt the swing, and the
-        link-loss station keeping drifted 0.48 m (fresh campaign seed 281 e812)."""
+        along x (a range observer with a rate and bias of its own learnt the swings of single
+        noisy flow readings: docs/flight.md)."""
         p = self.p
         self.front.propagate(now, rate=-vx)
         fs = m.front_sonar
@@ -313,9 +309,8 @@ class MAVStateUpdater:
 
     def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
         """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
-        a brief loss of every range sensor is not yet a lost reference. Descending at once, a
-        vehicle that came to rest blind beside a box edge brought its rotors onto that edge
-        within the 2.9 s the sensors were silent (safety campaign, seed 5 e1805)."""
+        a brief loss of every range sensor is not yet a lost reference, and a vehicle that came to
+        rest blind beside a box edge and descended at once brings its rotors onto that edge."""
         if mode >= 0:
             self._alarm_since = None
         elif self._alarm_since is None:
@@ -331,9 +326,7 @@ class MAVStateUpdater:
 
         Each range sensor within its range: below the bottom sonar's clamp zone the TeraRanger,
         which reads down to 0.20 m, measures the height (the sonar reads 0.30 m there whether
-        the vehicle hovers 0.3 m up or stands on the floor, and a landing that hopped after a
-        battery sag took the hop's top, 0.21 m above the floor, for the touchdown and fell from
-        it at 0.95 m/s: campaign seed 113 e1766)."""
+        the vehicle hovers 0.3 m up or stands on the floor: a hop taken for the touchdown)."""
         p = self.p
         source, latency, height_floor = None, 0.0, None
         if feeds.height is Source.BOTTOM_SONAR:
@@ -384,15 +377,12 @@ class MAVStateUpdater:
         """The speed noise of a PX4Flow reading: its angular noise times the range it sees (it scales
         its angular flow by that range; PX4's EKF2 weighs flow in rad/s), never below a range
         rate's. Taken with one speed noise whatever the range, the front flow 4.9 m from a wall
-        (0.2 m/s of noise there) counted as much as at 2 m, and four readings taken as a range loss
-        began moved the vertical bias by 0.044 m/s^2: the alarm descent that followed ran at 0.44
-        m/s instead of 0.2 into a box's edge (campaign seed 287 e1354). Without the floor, the flow
-        at 1 m counted as 0.05 m/s: the vehicle's tilt jittered 4 % more over Fig. 7's passes and
-        the report bench's register lost corrosion IoU (0.713 -> 0.629), so near the wall a
-        reading counts as a range rate does. The angular noise follows the reading's quality as
-        PX4's EKF2 takes it (``EKF2_OF_N_MIN`` at 255 to ``EKF2_OF_N_MAX`` at ``EKF2_OF_QMIN``,
-        linearly): on low texture the quality wanders about the threshold, and with one noise for
-        all and a threshold of 80 the flow came and went at random (seed 291 e1739)."""
+        (0.2 m/s of noise there) counted as much as at 2 m and moved the vertical bias enough to
+        double the alarm descent that followed; without the floor, the flow at 1 m made the tilt
+        jitter over Fig. 7's passes, so near the wall a reading counts as a range rate does. The
+        angular noise follows the reading's quality as PX4's EKF2 takes it (``EKF2_OF_N_MIN`` at
+        255 to ``EKF2_OF_N_MAX`` at ``EKF2_OF_QMIN``, linearly): on low texture the quality wanders
+        about the threshold, and one noise for all made the flow come and go (docs/flight.md)."""
         p = self.p
         span = 255 - p.flow_min_quality
         w = min(1.0, max(0.0, (quality - p.flow_min_quality) / span)) if span > 0 else 1.0

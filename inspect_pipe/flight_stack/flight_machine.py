@@ -36,7 +36,7 @@ class ImpactDetector:
     controller's ``unexplained_lift_m_s2``) beyond ``accel_m_s2`` and beyond ``noise_sigma`` times
     the RMS of that unexplained lift over the last ~1 s of flight. Rotor vibration makes that
     noise: at 1.15 m/s^2 a 3 m/s^2 spike came by chance within 0.2 s of an alarm mode, the vehicle
-    took it for a touchdown and ramped its thrust down in mid-air (campaign seed 11 e174)."""
+    took it for a touchdown and ramped its thrust down in mid-air."""
 
     def __init__(self, accel_m_s2: float, noise_sigma: float, window_ticks: int = 50) -> None:
         self.accel_m_s2, self.noise_sigma, self.window_ticks = accel_m_s2, noise_sigma, window_ticks
@@ -112,7 +112,7 @@ class FlightMachine:
             # A vehicle that drifted into front-wall range during an alarm descent reached the
             # floor in mode 3 and sat there "flying". Mode -1 still measures the height (the
             # TeraRanger): a jolt above flying_height_m is not the floor (a vibration fault's
-            # first spikes at 3.5 m ramped the thrust down in mid-air: campaign seed 137 e145).
+            # first spikes at 3.5 m ramped the thrust down in mid-air).
             # Mode -2 and mode 3 have no height to test a jolt by, but the last measured one
             # still bounds it: a jolt sooner than a descent at ``fastest_descent_m_s`` (1.2 m/s)
             # from that height could reach the floor is not the floor (every range sensor lost at 2.06 m,
@@ -136,7 +136,7 @@ class FlightMachine:
             down_m = est.height_floor_m if est.height_floor_m is not None else SONAR_FLOOR_M
             at_floor = est.height_m <= down_m
             # The jolt is the floor only where no height is measured, or where the measured one is at
-            # its floor too (fresh campaign seed 223 e311: a vibration fault that began in the descent
+            # its floor too (a vibration fault that began in the descent
             # gave a spike at 0.45 m, 0.08 m above the floor by the sonar; the thrust ramped down there
             # and the vehicle hit the floor at 1.2 m/s). A true touchdown away from that reading is
             # still found by the height and speed at rest, ``touchdown_confirm_s`` later.
@@ -164,7 +164,7 @@ class FlightMachine:
             # With no height measured, the jolt taken for the floor may have been a vibration fault's
             # first spikes in mid-air, past the time bound above (every range sensor lost at 1.47 m,
             # the spikes 1.2 s later: the ramp-down began and the vehicle fell 1.3 m onto the tank
-            # top at 2.6 m/s, fresh campaign seed 299 e182). On the floor the vehicle cannot go on
+            # top at 2.6 m/s). On the floor the vehicle cannot go on
             # descending: a carried vertical speed below the fastest descent the machine commands
             # (``descend_speed_m_s``) once the ramp began is a fall, and the vehicle flies on (the
             # alarm descent resumes; a true touchdown, where it stops, is taken at the next jolt).

@@ -71,9 +71,8 @@ class RangeObserver:
         r = z - self.at(t_meas)
         if self.jump_m is not None and abs(r) > self.jump_m:
             # Taken as motion, the front range's step from 1.0 to 2.8 m (the vehicle slid past a
-            # pillar's end) read as 2 m/s away from it and the bias state hit its limit (campaign
-            # seed 12 e80; a speed observer that adopted that rate flew the vehicle into the far
-            # wall).
+            # pillar's end) read as 2 m/s away from it and the bias state hit its limit (a speed
+            # observer that adopted that rate flew the vehicle into the far wall).
             self.value += r
             return
         self.value += min(self.k1 * ts, 1.0) * r
@@ -124,8 +123,8 @@ class SpeedObserver:
     speed is carried on with the IMU and its variance grows, so the gate widens until a
     measurement consistent with that uncertainty is taken again. The gate can also close for good:
     after a blind spell the speed loop steers the vehicle by the carried speed, so the true speed
-    runs away from it faster than the variance grows, and every measurement is refused (fresh
-    campaign seed 251 e1071: the bottom flow read -0.3 to -1.4 m/s for six seconds, the estimate
+    runs away from it faster than the variance grows, and every measurement is refused (the
+    bottom flow read -0.3 to -1.4 m/s for six seconds, the estimate
     stayed at +0.1 to +0.6, the vehicle flew backwards into the wall at 2 m/s). So
     ``RESTART_AFTER`` measurements refused in a row restart the speed at the last of them.
 
@@ -136,7 +135,7 @@ class SpeedObserver:
     to ``accel_noise``: rotor vibration raises it 10x and more (a vibration fault of rate 0.44 is
     1.3 m/s^2 a tick), and a filter that kept trusting the IMU as in calm air followed the 10 Hz
     range rates 0.3 m/s late in mode 2, where the link-loss hold rocked the vehicle 0.32 m off
-    its point (campaign seed 283 e1854).
+    its point.
     """
 
     V0, B0 = 0.5**2, 0.1**2  # initial variances: speed unknown within 0.5 m/s, bias within 0.1 m/s^2
@@ -344,7 +343,7 @@ class StuckCheck:
         the reading itself), taken as the true value when the repeats begin. Judged from the
         repeated reading instead, a stuck bottom flow 0.07 m/s off the true speed (its noise)
         needed 0.22 m/s of real change to be found, and the vehicle crept 0.11 m inside the stop
-        line meanwhile (safety campaign, seed 1 e124)."""
+        line meanwhile."""
         if stamp_s != self._stamp:
             # Across a silence the rates are unknown: one sample's rate times the silence is no
             # integral (a bottom PX4Flow dropped for 3 s came back stuck at its last value; its
@@ -369,8 +368,8 @@ class StuckCheck:
         if self._repeats < self.samples - 1:
             return False
         # Once found, stuck until the value changes: the integrated change wanders back under
-        # the limit when the vehicle brakes, and the stuck value was trusted again (safety
-        # campaign, seed 3: flickering between the flow and the range-rate estimate at a wall).
+        # the limit when the vehicle brakes, and the stuck value was trusted again (flickering
+        # between the flow and the range-rate estimate at a wall).
         self._latched = self._latched or max(abs(x) for x in self._disagreement()) > self.change_limit
         return self._latched
 

@@ -17,13 +17,12 @@ say nothing about how far up or down a surface reaches: a floor box heard during
 not in the way of the flight above it, and the sonars at the new height hear what is). Forgotten
 after a fixed 8 s instead, a corner pillar heard 3 m ahead while hovering was gone by the time
 an inspection sweep slid sideways past it, inside the blind diagonal between two beams; a low box
-heard during the climb and kept in the front sonar's bin hid the same kind of pillar (safety
-campaign, seed 173: three sweeps along a front wall into a corner pillar). A heard surface is not
+heard during the climb and kept in the front sonar's bin hid the same kind of pillar. A heard surface is not
 replaced by a farther echo of its bin (by more than ``jump_m``) until the vehicle has moved sideways
 of it by the beam's half-width at its range plus ``body_radius_m``: a farther echo then means that
 the nearer surface left the beam's edge (the beam narrows as the vehicle closes in, or a gust moved it
 a few centimetres), not that it is gone, and where it was heard it can still be in the vehicle's
-path (seed 61 e338: a box heard 1.03 m ahead for 4 s left the beam when the vehicle drifted 3 cm, the
+path (a box heard 1.03 m ahead for 4 s left the beam when the vehicle drifted 3 cm, the
 far wall's 2.45 m replaced it and the vehicle flew into the box). The clearance along a
 body axis is the smallest perpendicular distance to a remembered plane whose normal is within
 ``max_angle_deg`` of that axis: conservative for an oblique plane (the vehicle closes it at

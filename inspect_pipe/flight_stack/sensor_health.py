@@ -19,7 +19,7 @@ from inspect_pipe.flight_stack.params import EstimationParams
 # The height below which a bottom range sensor's reading is its clamp, within its noise: the HRLV
 # sonar reports 0.30 m when closer (+-0.006 m), the TeraRanger One 0.20 m (+-0.02 m). Judged at
 # 0.35 m, a hover the controller had just arrested at 0.33 m after a battery sag's dip was a
-# touchdown (campaign seed 11 e190); so was a 0.35 m TeraRanger threshold 0.27 m above the floor.
+# touchdown; so was a 0.35 m TeraRanger threshold 0.27 m above the floor.
 SONAR_FLOOR_M = 0.32
 TOF_FLOOR_M = 0.25
 # Reading delays, sample to delivery (datasheet figures, as the simulator delivers them; docs/flight.md,

@@ -99,7 +99,7 @@ class MAVBehaviors:
         if not operator.link_ok and estimate.mode >= 0:
             # The station keeping takes the operator's place: prevent_collision bounds it as it bounds the stick
             # (bounding the absent operator's zero instead cancelled the hold on any axis near a wall, and a
-            # 1 m/s gust carried the vehicle 0.41 m off its rest point: seed 83 e331).
+            # 1 m/s gust carried the vehicle 0.41 m off its rest point).
             # (the tree below calls it again this tick: same inputs, same answer; it only picks its hold point once)
             hold = self.waiting_for_connectivity.update(inputs, dt)
             if hold is not None and hold != AxisVector.full(HOVER):

@@ -47,7 +47,7 @@ def sensed_direction(vx: float, vy: float, inputs: BehaviorInputs, p: BehaviorPa
     onto the nearer axis, where a beam sees what the vehicle moves towards and the per-axis
     attenuation stops it; far from the walls it is flown as given. (Slowed instead, from 3 m to
     zero at the safe distance, the diagonal still crept at 0.07-0.1 m/s into pillars standing
-    0.5-2 m out of a corner: campaign seeds 11 e114, 12 e24, e98, 41 e33. PX4's collision
+    0.5-2 m out of a corner. PX4's collision
     prevention turns a set-point into the nearest direction with data, ``CP_GUIDE_ANG``, for the
     same reason.)"""
     if vx <= 0.0 or vy == 0.0:

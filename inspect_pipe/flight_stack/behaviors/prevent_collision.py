@@ -62,8 +62,8 @@ class PreventCollision:
         # 5-12 cm inside the line. Deeper inside, the repulsion acts as always.
         # The hold band is for a vehicle at rest inside the line. One still moving in (a trim the
         # integrators kept from the approach, a gust's end) is pushed back from the line itself:
-        # held at zero, it crept on at 0.05-0.1 m/s for 1-2 s and ended 0.10-0.11 m inside (tuning
-        # seed 173: e163, e1452, e1761; docs/campaign.md, session 20).
+        # held at zero, it crept on at 0.05-0.1 m/s for 1-2 s and ended 0.10-0.11 m inside
+        # (docs/campaign.md, session 20).
         link_band = max(p.repulsion_deadband_m, p.link_loss_deadband_m)
 
         def band(closing_m_s: float) -> float:

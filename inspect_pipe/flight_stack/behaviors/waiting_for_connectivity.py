@@ -9,7 +9,7 @@ detected instead flew the vehicle back over its own braking distance, 0.3 m from
 with nobody at the stick.) Without odometry (no heading from the autopilot) it is the paper's
 plain hover, and so it is in the alarm modes (-1, -2): there no sensor measures the horizontal
 speed, the odometry is the IMU's dead reckoning, and chasing the point it held flew a vibrating
-vehicle 0.3 m towards the wall it no longer heard (fresh campaign seed 263 e226); the point is
+vehicle 0.3 m towards the wall it no longer heard; the point is
 dropped, and a new one taken at rest once a speed is measured again.
 """
 
