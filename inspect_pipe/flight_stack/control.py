@@ -61,10 +61,9 @@ class AccelObserver:
     response such as rotor drag); the IMU says what it gave. The difference, low-passed with
     ``tau_s``, is a disturbance: a thrust shortfall (battery sag, weaker motors, a heavier
     vehicle) or wind. It is added to the command at once, instead of waiting for a position or
-    speed loop to meet it with an error: the height loop's 3 1/s^2 let a 16 % battery sag sink
-    the vehicle 0.5 m onto a box top; a 1.2 m/s gust carried it 0.14 m past the stop line
-    into a pillar's corner (safety campaign, seed 2). What it does not make up (the IMU's bias,
-    beyond ``limit``) is left to the integrators."""
+    speed loop to meet it with an error, which a battery sag or a gust had time to turn into
+    lost height or a stop line passed (docs/flight.md, Control). What it does not make up (the
+    IMU's bias, beyond ``limit``) is left to the integrators."""
 
     def __init__(self, *, tau_s: float, lag_s: float, limit: float) -> None:
         self.tau_s, self.lag_s, self.limit = tau_s, lag_s, limit
@@ -183,9 +182,8 @@ class FlightController:
     def unexplained_lift_m_s2(self, az_measured: float) -> float:
         """How much more upward acceleration the IMU felt than the last set-point explains, for
         this vehicle (nominal response less the shortfall the observer has learnt): the floor's
-        jolt at touchdown. (Judged against the nominal hover thrust instead, a light vehicle's
-        ordinary climb at "hover thrust" was a touchdown: safety campaign, seed 4, a -29 % mass
-        vehicle took a mode change at 2.5 m for the floor and fell.)"""
+        jolt at touchdown. Judged against the nominal hover thrust instead, a light vehicle's
+        ordinary climb is such a jolt."""
         return self.obs_z.surprise(az_measured)
 
     def calibrate_at_rest(self, accel_measured: tuple[float, float, float] | None) -> None:
@@ -235,8 +233,8 @@ class FlightController:
         self._vxy_ref = (rx, ry)
         if relax_xy_integrators:
             # Nothing measures the speed (the alarm modes): the trims take nothing, and what they
-            # hold relaxes at the rate they build. Held, a trim that had answered a gust pushed on
-            # after the gust ended, unseen (campaign seed 173 e1761: 0.109 m past the line).
+            # hold relaxes at the rate they build. Held, a trim that had answered a gust pushes on
+            # after the gust ended, unseen.
             freeze_xy = True
             keep = max(0.0, 1.0 - p.speed_ki_1_s2 / p.speed_kp_1_s * dt)
             self.pid_vx.integral *= keep
@@ -274,7 +272,7 @@ class FlightController:
                 # D terms answer its own height error and the noisy vertical speed of that tick,
                 # and kept as trim they became a lasting push (0.2 m/s^2 from one tick's D term
                 # made Fig. 7's 0.2 m/s descent 0.218 m/s; into an alarm mode, the answer to the
-                # alarm's filled-in state drove its descent to 0.48 m/s instead of 0.2, seed 4).
+                # alarm's filled-in state drove its descent to 0.48 m/s instead of 0.2).
                 # A thrust shortfall the P term was making up (a battery sag) is the vertical
                 # disturbance observer's, which carries on across the hand-over.
                 lim = self.pid_vz.integral_limit
@@ -286,12 +284,14 @@ class FlightController:
             # command itself: a step of the command is the P term's to follow, and integrated it
             # wound up a trim the vehicle overshot with (0.27 m/s for 0.2 after each inspection
             # step, 1.5 s to unwind). A missing trim still shows as a lasting deviation, and at a
-            # steady command the model is the command: no steady error either way.
+            # steady command the model is the command: no steady error either way. In mode -2 both
+            # terms leave alone the band the IMU's noise could have made of the carried vz, as the
+            # XY loops do (the integrator, taking it, wound the noise's walk into the trim).
             if self._vz_ref is None:
                 self._vz_ref = est.vz_m_s
             self._vz_ref += (cmd.vz_m_s - self._vz_ref) * min(1.0, p.vz_kp_1_s * dt)
             az = self.pid_vz.update(_beyond(cmd.vz_m_s - est.vz_m_s, bz), dt, freeze=freeze_integrators,
-                                    integrate=self._vz_ref - est.vz_m_s)
+                                    integrate=_beyond(self._vz_ref - est.vz_m_s, bz))
             trim = self.pid_vz.integral
         self.vertical_mode = mode
 
@@ -304,8 +304,7 @@ class FlightController:
         # transients in, and answered, they pushed the inspection sweep 6 % below its 0.20 m/s.
         # Nor is what the IMU's own noise, measured in flight, makes them show: under rotor
         # vibration they turned noise into tilt (1.4 m/s^2 a tick gave pushes of 0.3-0.7 m/s^2 for
-        # a second at a time; in an alarm mode nothing measured what they did: fresh campaign seed
-        # 239 e989, 0.37 m past the stop line, 0.08 m with this).
+        # a second at a time, and in an alarm mode nothing measured what they did).
         band = p.accel_observer_xy_band_m_s2
         k = p.accel_observer_noise_sigma
         vx_obs = self.obs_x.update(meas[0], dt, nominal=-drag * est.vx_m_s)
