@@ -284,14 +284,15 @@ class FlightController:
             # command itself: a step of the command is the P term's to follow, and integrated it
             # wound up a trim the vehicle overshot with (0.27 m/s for 0.2 after each inspection
             # step, 1.5 s to unwind). A missing trim still shows as a lasting deviation, and at a
-            # steady command the model is the command: no steady error either way. In mode -2 both
-            # terms leave alone the band the IMU's noise could have made of the carried vz, as the
-            # XY loops do (the integrator, taking it, wound the noise's walk into the trim).
+            # steady command the model is the command: no steady error either way. In mode -2 the
+            # P term leaves alone the band the IMU's noise could have made of the carried vz; the
+            # integrator does not (with the band, the alarm descent met the floor too softly for
+            # the touchdown's jolt in alarm_stuck_teraranger: docs/flight.md, Session 33).
             if self._vz_ref is None:
                 self._vz_ref = est.vz_m_s
             self._vz_ref += (cmd.vz_m_s - self._vz_ref) * min(1.0, p.vz_kp_1_s * dt)
             az = self.pid_vz.update(_beyond(cmd.vz_m_s - est.vz_m_s, bz), dt, freeze=freeze_integrators,
-                                    integrate=_beyond(self._vz_ref - est.vz_m_s, bz))
+                                    integrate=self._vz_ref - est.vz_m_s)
             trim = self.pid_vz.integral
         self.vertical_mode = mode
 
