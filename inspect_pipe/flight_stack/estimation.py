@@ -131,6 +131,9 @@ class MAVStateUpdater:
         )
         self._obs_yaw: float | None = None  # the heading the observers' speeds are expressed in
         self._alarm_since: float | None = None  # when the current alarm mode began
+        # The last floor step the downward sensors heard (a box's edge): the odometry's travel and
+        # blind time then, and how far from the vehicle's centre the edge can be (see _alarm_climb).
+        self._edge: tuple[float, float, float] | None = None
         self.memory = ObstacleMemory(
             keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg,
             jump_m=p.height_jump_m, beam_half_rad=self._beam_half_angle_rad, body_radius_m=p.body_radius_m,
@@ -200,7 +203,13 @@ class MAVStateUpdater:
             self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
         vz_flow = fflow.vz_m_s if feeds.vz is Source.FRONT_FLOW and fflow is not None else None
         climb = self._alarm_climb(now, mode)
+        floor0, height0 = self.height.floor_offset_m, self.height.height_m
         height_floor = self._height(now, m, feeds, status, az, vz_flow, climb)
+        if abs(self.height.floor_offset_m - floor0) > p.height_jump_m:
+            # A floor step: the edge lies within the beam's footprint (its half-width at the longer
+            # of the two ranges) of the centre, and the rotors reach body_radius_m further.
+            reach = p.body_radius_m + max(height0, self.height.height_m) * math.tan(self._beam_half_angle_rad)
+            self._edge = (self.memory.travel_m, self.memory.blind_s, reach)
         vz = self._vertical_speed(feeds, vz_flow, climb, dt, m)
 
         self.rates.note_speed(now, vx, vy)
@@ -310,13 +319,27 @@ class MAVStateUpdater:
     def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
         """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
         a brief loss of every range sensor is not yet a lost reference, and a vehicle that came to
-        rest blind beside a box edge and descended at once brings its rotors onto that edge."""
+        rest blind beside a box edge and descended at once brings its rotors onto that edge.
+
+        Nor while an edge the downward sensors heard may be within the rotors' reach: the odometry
+        has moved the vehicle less than that edge's reach since it was heard (:attr:`_edge`), for
+        as long as the obstacle memory keeps what it heard while blind (``memory_keep_s``). Blind,
+        the descent cannot tell which side of the edge it is on, and beside a box it meets the top
+        edge with its rotors; the wait holds the height until the sensors come back (a range
+        loss lasts seconds) or the memory's keep runs out (docs/flight.md, Limits)."""
+        p = self.p
         if mode >= 0:
             self._alarm_since = None
         elif self._alarm_since is None:
             self._alarm_since = now
         alarm_s = 0.0 if self._alarm_since is None else now - self._alarm_since
-        return self.p.alarm_climb_m_s if mode < 0 and alarm_s >= self.p.alarm_descent_delay_s else 0.0
+        if mode >= 0 or alarm_s < p.alarm_descent_delay_s:
+            return 0.0
+        if self._edge is not None and alarm_s < p.memory_keep_s:
+            travel, blind, reach = self._edge
+            if self.memory.travel_m - travel < reach and self.memory.blind_s - blind <= p.memory_keep_s:
+                return 0.0
+        return p.alarm_climb_m_s
 
     def _height(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus, az: float,
                 vz_flow: float | None, climb: float) -> float | None:

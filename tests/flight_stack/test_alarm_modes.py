@@ -94,3 +94,54 @@ def test_the_speed_loops_leave_an_error_within_the_band_alone():
     assert tilt(0.0) < -0.01
     assert abs(tilt(0.15)) < 0.01 * abs(tilt(0.0))
     assert tilt(0.06) == pytest.approx(0.4 * tilt(0.0), rel=0.05)
+
+
+def test_the_alarm_descent_waits_while_a_heard_edge_may_be_within_reach():
+    from inspect_pipe.flight_stack.messages import EstimationMode as M
+    from inspect_pipe.flight_stack.params import EstimationParams
+
+    p = EstimationParams()
+    upd = MAVStateUpdater(p)
+    # GIVEN mode -2 from t=0 and no floor step heard: the descent begins after alarm_descent_delay_s
+    assert upd._alarm_climb(0.0, M.ALARM_NONE) == 0.0
+    assert upd._alarm_climb(p.alarm_descent_delay_s, M.ALARM_NONE) == p.alarm_climb_m_s
+    # GIVEN instead a box edge heard just before (reach 0.5 m), the vehicle 0.2 m from where it was heard
+    upd = MAVStateUpdater(p)
+    upd._edge = (0.0, 0.0, 0.5)
+    upd.memory.travel_m = 0.2
+    upd._alarm_climb(0.0, M.ALARM_NONE)
+    # THEN the descent waits past the delay, while the edge may be within the rotors' reach
+    assert upd._alarm_climb(p.alarm_descent_delay_s + 2.0, M.ALARM_NONE) == 0.0
+    # AND once the odometry has carried it beyond the reach, it descends
+    upd.memory.travel_m = 0.6
+    assert upd._alarm_climb(p.alarm_descent_delay_s + 2.1, M.ALARM_NONE) == p.alarm_climb_m_s
+    # AND within reach, it waits no longer than the obstacle memory keeps what it heard while blind
+    upd.memory.travel_m = 0.2
+    assert upd._alarm_climb(p.memory_keep_s - 0.1, M.ALARM_NONE) == 0.0
+    assert upd._alarm_climb(p.memory_keep_s, M.ALARM_NONE) == p.alarm_climb_m_s
+    # AND a measured mode ends the alarm (the next alarm starts its delay afresh)
+    assert upd._alarm_climb(p.memory_keep_s + 0.1, M.BOTTOM) == 0.0
+
+
+def test_a_floor_step_heard_records_the_edge_and_its_reach():
+    from inspect_pipe.flight import load_scenario, run_scenario
+    from inspect_pipe.flight_stack import estimation as E
+
+    # GIVEN the paper's box overflight WHEN flown THEN the floor steps heard set the edge, whose reach
+    # is the body radius plus the beam's half-width at the longer range (about 0.27 + 1 m x tan 15 deg)
+    edges = []
+    orig = E.MAVStateUpdater.update
+
+    def spy(self, now, m):
+        out = orig(self, now, m)
+        if self._edge is not None and (not edges or edges[-1] != self._edge):
+            edges.append(self._edge)
+        return out
+
+    E.MAVStateUpdater.update = spy
+    try:
+        run_scenario(load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "floor_box_overflight.yaml"))
+    finally:
+        E.MAVStateUpdater.update = orig
+    assert len(edges) >= 2  # onto the box and off it
+    assert all(0.4 < reach < 1.0 for _, _, reach in edges)
