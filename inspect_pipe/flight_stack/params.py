@@ -168,7 +168,8 @@ class BehaviorParams:
     )
     covered_half_angle_deg: float = param(
         15.0, 0.0, 45.0, "deg", "half-width of the horizontal sonars' beams (the reading is the nearest echo in it): "
-        "motion within it of an axis is seen; the estimator's oblique-wall fit uses it too"
+        "motion within it of an axis is seen; the estimator's oblique-wall fit uses it too, and the reach of a floor edge "
+        "heard below (the downward sonar is the same HRLV)"
     )
     blind_attenuation_start_m: float = param(
         3.0, 1.0, 6.0, "m", "within this distance of the nearer wall a diagonal push between the beams flies only its "
