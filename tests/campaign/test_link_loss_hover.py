@@ -59,6 +59,9 @@ HONEST_DRIFT_CASES = [
     (263, 226, "campaign_s263_e00226_corner_push.yaml", 0.331),
     # a flow glitch the x observer refused drove the front range's rate, then the observer, then the station keeping
     (11, 428, "campaign_s11_e00428_wall_push.yaml", 0.312),
+    # a 9.5 s hold 3 m over a floor of low texture, no wall in the sonars' range: the bottom flow's quality
+    # about 26, refused below 40 five readings in six, the rest too few to hold the IMU's drift
+    (315, 94, "campaign_s315_e00094_passage.yaml", 0.414),
 ]
 
 
@@ -66,7 +69,7 @@ HONEST_DRIFT_CASES = [
 def test_link_loss_hover_does_not_chase_a_speed_nothing_measured(seed, index, fname, before):
     assert (REGRESSIONS / fname).is_file()
     # GIVEN a link loss during which the speed estimate leaves the truth: dead reckoning under vibration (alarm mode),
-    # or a flow glitch the observer refused that still reached it through the front range
+    # or a flow glitch the observer refused that still reached it through the front range, or a floor of low texture
     # WHEN ours flies it THEN the station keeping holds the vehicle within 0.25 m (goal 0.3)
     r = fly_episode(generate_episode(seed, index), "ours")
     assert not r.collided

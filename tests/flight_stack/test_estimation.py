@@ -58,13 +58,13 @@ def test_table1_rows_say_which_measurement_feeds_each_state_as_the_paper_does():
 
 
 def test_mode_0_takes_its_vertical_speed_from_the_height_not_from_a_front_flow_of_low_quality():
-    # GIVEN hover at 1.5 m over the floor (mode 0: the front flow's quality below the threshold),
+    # GIVEN hover at 1.5 m over the floor (mode 0: the front flow reports quality 0, no flow, below the threshold),
     # the front flow claiming a 0.5 m/s climb
     est = MAVStateUpdater()
     for k in range(200):
         t = k * 0.02
         m = _meas(t, vx=0.0, vy=0.0, vz=0.0)
-        ff = dataclasses.replace(m.front_flow, vz_m_s=0.5, quality=10)
+        ff = dataclasses.replace(m.front_flow, vz_m_s=0.5, quality=0)
         e, _ = est.update(t, dataclasses.replace(m, front_flow=ff))
     # THEN Table I's mode 0 feeds vz from the height's derivative: the claim is not used
     assert e.mode == EstimationMode.BOTTOM
@@ -882,11 +882,11 @@ def test_a_front_flow_reading_counts_less_the_further_the_wall_it_sees():
 
 def test_a_poor_quality_flow_reading_counts_less_than_a_good_one():
     # GIVEN the same four front-flow readings claiming a climb 2 m from the wall, at the quality of
-    # a textured, lit wall (200), of a poor one (60) and just below flow_min_quality (39)
+    # a textured, lit wall (200), of a poor one (60) and of no flow at all (0, below flow_min_quality)
     good_v, good_b = _front_flow_burst(2.0, quality=200)
     poor_v, poor_b = _front_flow_burst(2.0, quality=60)
-    none_v, none_b = _front_flow_burst(2.0, quality=39)
-    # THEN the poor readings are taken (quality 60 is above flow_min_quality, 40) with the noise
+    none_v, none_b = _front_flow_burst(2.0, quality=0)
+    # THEN the poor readings are taken (quality 60 is above flow_min_quality, 1) with the noise
     # PX4's EKF2 gives them, near EKF2_OF_N_MAX: they move the speed and the bias less (measured:
     # 0.115 m/s and 0.040 m/s^2 at quality 200, 0.063 and 0.022 at 60)
     assert 0.0 < poor_v < 0.8 * good_v and 0.0 < poor_b < 0.8 * good_b
