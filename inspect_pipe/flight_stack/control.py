@@ -195,6 +195,18 @@ class FlightController:
     def hold_height(self, ref_m: float) -> None:
         self.height_ref_m = ref_m
 
+    def hand_trim_to_observer(self) -> None:
+        """The vertical trim found without the IMU becomes the disturbance observer's, which takes
+        the IMU from now on (the take-off ends: on the floor the IMU cannot tell a thrust
+        shortfall, so the ramp finds it in the integrator). Left in the integrator it is counted
+        twice: the observer makes up whatever the vehicle does less than the set-point asks, the
+        integrator's trim included, so that trim became an extra climb only the height error
+        could cancel (-28 % thrust: the hover at 1 m overshot to 2.1 m). Bumpless: the thrust
+        asked is the same on either side."""
+        o, lim = self.obs_z, self.obs_z.limit
+        o.value = max(-lim, min(lim, o.value + self.pid_vz.integral))
+        self.pid_vz.integral = 0.0
+
     def update(
         self,
         cmd: SpeedCommand,

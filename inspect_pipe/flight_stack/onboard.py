@@ -91,6 +91,8 @@ class OnboardStack:
             ),
         )
         ctrl = self.controller
+        if before is FlightState.TAKING_OFF and state in (FlightState.FLYING, FlightState.DESCENDING):
+            ctrl.hand_trim_to_observer()
         if state is FlightState.FLYING and before is FlightState.TAKING_OFF:
             ctrl.hold_height(max(fm.hover_height_m, est.altitude_m))
             self._climb_to_m = fm.hover_height_m
