@@ -143,7 +143,7 @@ class OnboardStack:
             if alarm:
                 cmd = SpeedCommand(cmd.vx_m_s, cmd.vy_m_s, 0.0, cmd.yaw_rate_rad_s)
             self._resume_height_after_alarm(alarm, cmd)
-            self._finish_takeoff_climb(cmd, est)
+            self._finish_takeoff_climb(cmd, est, dt)
             # In the alarm modes the vertical speed is the IMU-carried speed plus "+val", a real
             # speed error, so the vertical integrator keeps working: frozen, it could not make up
             # a thrust loss that began just before (safety campaign: battery sag, then every range
@@ -180,19 +180,25 @@ class OnboardStack:
             inspection_mode=self.behaviors.inspection_mode,
         )
 
-    def _finish_takeoff_climb(self, cmd: SpeedCommand, est: StateEstimate) -> None:
+    def _finish_takeoff_climb(self, cmd: SpeedCommand, est: StateEstimate, dt: float) -> None:
         """Keep the take-off's hover height as the floor of the height hold until it is reached.
 
         The flight machine hands over to FLYING at ``flying_height_m`` (0.5 m); a slow climb
         (heavy vehicle, weak motors) then met an operator's short climb command that was meant to
         start from the hover height, and the hold latched at 0.6 m, level with hatch coamings
-        (safety campaign, +17 % mass: flew into a 0.51 m floor step). A descent command ends it."""
+        (safety campaign, +17 % mass: flew into a 0.51 m floor step). So a climb the operator
+        asks for before that height is reached is added to it: the climb starts from the hover
+        height, as the operator meant (kept as a floor only, the hold still latched 0.4 m below
+        where the climb was meant to end, level with a 0.85 m coaming ahead). A descent command
+        ends it."""
         target = self._climb_to_m
         if target is None:
             return
         if est.altitude_m >= target - 0.05 or cmd.vz_m_s < 0.0:
             self._climb_to_m = None
             return
+        if cmd.vz_m_s > 0.0:
+            self._climb_to_m = target = target + cmd.vz_m_s * dt
         ctrl = self.controller
         if ctrl.height_ref_m is not None and ctrl.height_ref_m < target:
             ctrl.hold_height(target)

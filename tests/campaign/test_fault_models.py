@@ -124,3 +124,22 @@ def test_a_heavy_or_weak_vehicle_does_not_overshoot_the_hover_height_after_take_
     # twice (counted twice: 1.36, 1.66 and 2.26 m)
     assert max(heights) < 1.1
     assert heights[-1] == pytest.approx(1.0, abs=0.1)
+
+
+def test_a_climb_asked_for_before_a_slow_take_off_reaches_its_hover_height_starts_from_that_height():
+    from inspect_pipe.flight import run_scenario
+
+    # GIVEN a vehicle 30 % heavier than nominal, slow to take off, and an operator who climbs at
+    # 0.4 m/s for 1.3 s, 3.5 s after pressing take-off (meant: 0.52 m above the 1 m hover height),
+    # while the take-off has not yet reached the hover height
+    heights = []
+    doc = {**BASE, "duration_s": 14, "vehicle": {"start": {"position": [4.0, 0, 0]}, "mass_scale": 1.3},
+           "operator": [{"t": 0.5, "button": "takeoff"}, {"t": 4.0, "stick": {"vz": 0.4}}, {"t": 5.3, "stick": {"vz": 0.0}}]}
+    run_scenario(parse_scenario(doc), on_tick=lambda r: heights.append((r.t, r.pos_true[2], r.out.fsm.name)))
+    at_climb = next(z for t, z, _ in heights if t >= 4.1)
+    assert at_climb < 0.9  # the take-off was still under way when the climb began
+    # THEN the vehicle settles about 1.5 m up: the climb is added to the hover height, not spent
+    # getting there (kept as a floor only: 1.15 m)
+    final = heights[-1][1]
+    assert final == pytest.approx(1.52, abs=0.12)
+    assert max(z for _, z, _ in heights) < final + 0.15
