@@ -111,7 +111,8 @@ def test_flow_quality_falls_on_low_texture():
     good = [x.bottom_flow.quality for x in _still(0.0)[50:] if x.bottom_flow]
     poor = [x.bottom_flow.quality for x in _still(0.0, SensorFaults(low_texture={SensorName.BOTTOM_FLOW: 0.8}))[50:] if x.bottom_flow]
     assert statistics.fmean(good) > 150
-    # about the stack's flow_min_quality (40): half the readings refused, the rest weighed as noisy
+    # a quality that wanders about 40: the stack takes such readings (flow_min_quality 1, as PX4's EKF2_OF_QMIN)
+    # but weighs them as noisy, near EKF2_OF_N_MAX
     assert 25 < statistics.fmean(poor) < 60
 
 
