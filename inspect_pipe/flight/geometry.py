@@ -4,14 +4,14 @@ clearances along the world axes and the distance to the nearest surface. Pure Py
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from inspect_pipe.flight.scenario import World
+from inspect_pipe.flight_stack.messages import message
 
 __all__ = ["Clearances", "HoldGeometry"]
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class Clearances:
     """True clearance from the vehicle's centre along each world direction (m); ``inf`` upwards
     of an open top is not reported."""

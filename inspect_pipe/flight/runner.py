@@ -16,7 +16,7 @@ from inspect_pipe.flight.scenario import VEHICLE_RADIUS_M, FaultKind, Scenario
 from inspect_pipe.flight.sensors import NO_FAULTS, SensorFaults, SensorSpecs, SensorSuite
 from inspect_pipe.flight.vehicle_sim import AttitudeFirmware, QuadrotorSim, VehicleModel
 from inspect_pipe.flight_stack.flight_machine import FlightState
-from inspect_pipe.flight_stack.messages import ImuReading
+from inspect_pipe.flight_stack.messages import ImuReading, message
 from inspect_pipe.flight_stack.onboard import OnboardStack, TickOutput
 from inspect_pipe.flight_stack.params import StackParams
 
@@ -32,7 +32,7 @@ class ExitStatus(str, enum.Enum):
     COLLISION = "collision"
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class TickRecord:
     """One control tick: ground truth and what the onboard stack saw and did."""
 

@@ -172,9 +172,8 @@ def _cone(specs: SensorSpecs) -> tuple[tuple[float, float, float], ...]:
 
 def _body_kinematics(sim: QuadrotorSim) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
     """The vehicle's velocity (m/s) and angular rates (rad/s) in the body frame."""
-    vx, vy, vz = sim.velocity
-    R0, R1, R2, R3, R4, R5, R6, R7, R8 = sim.rotation().ravel().tolist()
-    return (R0 * vx + R3 * vy + R6 * vz, R1 * vx + R4 * vy + R7 * vz, R2 * vx + R5 * vy + R8 * vz), sim.body_rates
+    (vx, vy, vz, p, q, r), (R0, R1, R2, R3, R4, R5, R6, R7, R8) = sim.kinematics()
+    return (R0 * vx + R3 * vy + R6 * vz, R1 * vx + R4 * vy + R7 * vz, R2 * vx + R5 * vy + R8 * vz), (p, q, r)
 
 
 class AttitudeError:
@@ -295,14 +294,13 @@ class SensorSuite:
     def _imu(self, now: float, sim: QuadrotorSim) -> ImuReading | None:
         """Mean specific force since the last reading (finite difference of the true velocity,
         gravity added, turned into the body frame), gyro rates, and the attitude estimate."""
-        v = sim.velocity
-        prev, self._imu_prev = self._imu_prev, (now, v)
+        (vx, vy, vz, p, q, r), (R0, R1, R2, R3, R4, R5, R6, R7, R8) = sim.kinematics()
+        prev, self._imu_prev = self._imu_prev, (now, (vx, vy, vz))
         if prev is None or now <= prev[0]:
             return None
         t0, (vx0, vy0, vz0) = prev
         dt = now - t0
-        ax, ay, az = (v[0] - vx0) / dt, (v[1] - vy0) / dt, (v[2] - vz0) / dt
-        R0, R1, R2, R3, R4, R5, R6, R7, R8 = sim.rotation().ravel().tolist()
+        ax, ay, az = (vx - vx0) / dt, (vy - vy0) / dt, (vz - vz0) / dt
         fz_w = az + G_M_S2
         spec = self.s.imu
         vib = spec.vibration_m_s2 + self._faults.vibration_m_s2
@@ -312,7 +310,6 @@ class SensorSuite:
         fy = R1 * ax + R4 * ay + R7 * fz_w + b[1] + g(0.0, sigma)
         fz = R2 * ax + R5 * ay + R8 * fz_w + b[2] + g(0.0, sigma)
         roll, pitch, yaw = sim.euler()
-        p, q, r = sim.body_rates
         c, sn = math.cos(yaw), math.sin(yaw)
         d_roll, d_pitch = self.attitude_error.advance(dt, (c * ax + sn * ay, -sn * ax + c * ay), (p, q), vib)
         sim.attitude_error = (d_roll, d_pitch)  # the firmware levels its estimate, not the truth

@@ -206,6 +206,7 @@ class QuadrotorSim:
         self._xfrc = self.data.xfrc_applied[self.body]
         self._xmat = self.data.xmat[self.body]  # views into MjData: they follow the simulation
         self._last_hit: tuple | None = None
+        self._geom_pos, self._geom_size = self.model.geom_pos.tolist(), self.model.geom_size.tolist()  # the scene is static
         # (quaternion, (roll, pitch, yaw)) of the last attitude worked out: the controller, the
         # sensors and the runner all ask for the attitude of the same physics state.
         self._att: tuple[list[float], tuple[float, float, float]] | None = None
@@ -262,6 +263,11 @@ class QuadrotorSim:
     def rotation(self) -> np.ndarray:
         return self.data.xmat[self.body].reshape(3, 3)
 
+    def kinematics(self) -> tuple[list[float], list[float]]:
+        """The velocity (m/s, world) with the body rates (rad/s) as (vx, vy, vz, p, q, r), and
+        the body-to-world rotation row by row (9 values): what the sensors read, in one go."""
+        return self.data.qvel.tolist(), self._xmat.tolist()
+
     # ------------------------------------------------------------------ control and physics
     def set_setpoint(self, sp: AttitudeSetpoint) -> None:
         self.setpoint = sp
@@ -303,7 +309,7 @@ class QuadrotorSim:
         yaw_rate_sp = sp.yaw_rate_rad_s
         yaw_sp_step = yaw_rate_sp * dt
         wx, wy, wz = self.wind_m_s
-        motors = self.motor_n
+        m0, m1, m2, m3 = self.motor_n
         err_r, err_p = self.attitude_error
         armed = thrust_sp > 0.0 or self.thrust_n > 0.01
         # Air disturbance: only while armed, constant over the call.
@@ -315,6 +321,8 @@ class QuadrotorSim:
             due = getattr(after_step, "next_due_s", -math.inf)
         t, yaw_sp = self.t, self.yaw_sp
         roll, pitch, yaw = self.euler()
+        z = float(qpos[2])
+        zr_min = 2.0 * r_ge
         for _ in range(n):
             vx, vy, vz, p, q, r = qvel.tolist()
             vx, vy, vz = vx - wx, vy - wy, vz - wz  # air-relative: drag pushes towards the wind
@@ -332,13 +340,14 @@ class QuadrotorSim:
                 cmd = (0.0, 0.0, 0.0, 0.0)
             # Motor lag, each motor giving its health's share of its command.
             u0, u1, u2, u3 = cmd
-            m0 = motors[0] = motors[0] + alpha * (h0 * u0 - motors[0])
-            m1 = motors[1] = motors[1] + alpha * (h1 * u1 - motors[1])
-            m2 = motors[2] = motors[2] + alpha * (h2 * u2 - motors[2])
-            m3 = motors[3] = motors[3] + alpha * (h3 * u3 - motors[3])
+            m0 += alpha * (h0 * u0 - m0)
+            m1 += alpha * (h1 * u1 - m1)
+            m2 += alpha * (h2 * u2 - m2)
+            m3 += alpha * (h3 * u3 - m3)
             # Ground effect (Cheeseman and Bennett): T / T_inf = 1 / (1 - (R / 4z)^2) over the floor,
             # taken no closer than z = R / 2, where the formula stops holding.
-            zr = max(qpos[2] + z_rotor, 2.0 * r_ge)
+            zr = z + z_rotor
+            zr = zr if zr > zr_min else zr_min
             ge = 1.0 / (1.0 - (r_ge / zr) ** 2)
             T = ge * (m0 + m1 + m2 + m3)
             tx = ge * arm * (m1 - m3)
@@ -355,7 +364,9 @@ class QuadrotorSim:
             xfrc[5] = R[6] * tx + R[7] * ty + R[8] * tz
             mujoco.mj_step(m, d)
             t += dt
-            roll, pitch, yaw = self._attitude(qpos[3:7].tolist())
+            q_now = qpos.tolist()
+            z = q_now[2]
+            roll, pitch, yaw = self._attitude(q_now[3:7])
             if t + 1e-9 >= due:
                 self.t, self.thrust_n, self.yaw_sp = t, T, yaw_sp
                 after_step(self)  # type: ignore[misc]
@@ -363,6 +374,7 @@ class QuadrotorSim:
                 t = self.t
             self.thrust_n = T
         self.t, self.yaw_sp = t, yaw_sp
+        self.motor_n = [m0, m1, m2, m3]
 
     # ------------------------------------------------------------------ sensing
     def ray(self, origin: tuple[float, float, float], direction_body: tuple[float, float, float]) -> float | None:
@@ -400,8 +412,9 @@ class QuadrotorSim:
     def _incidence(self, pnt, v, dist: float, g: int) -> float:
         """Angle between a ray and the normal of the surface it hit (rad); the hit face is the one
         of the (axis-aligned box) geom the hit point is farthest out on."""
-        c, half = self.model.geom_pos[g], self.model.geom_size[g]
-        k = max(range(3), key=lambda i: abs(pnt[i] + dist * v[i] - c[i]) / half[i])
+        (cx, cy, cz), (hx, hy, hz) = self._geom_pos[g], self._geom_size[g]
+        out = (abs(pnt[0] + dist * v[0] - cx) / hx, abs(pnt[1] + dist * v[1] - cy) / hy, abs(pnt[2] + dist * v[2] - cz) / hz)
+        k = 0 if out[0] >= out[1] and out[0] >= out[2] else 1 if out[1] >= out[2] else 2  # the first of equals, as max()
         return math.acos(min(1.0, abs(float(v[k]))))
 
     def incidence_rad(self) -> float:

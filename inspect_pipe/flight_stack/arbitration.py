@@ -13,15 +13,14 @@ behaviours that shaped it) or None when it commands nothing.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable, Hashable, Protocol, Sequence
 
-from inspect_pipe.flight_stack.messages import AxisVector, BehaviorInputs
+from inspect_pipe.flight_stack.messages import AxisVector, BehaviorInputs, message
 
 __all__ = ["Behavior", "Leaf", "MotorSchema", "Multiplexer", "Node", "Output", "Subsumption"]
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class Output:
     vector: AxisVector
     sources: tuple[str, ...]

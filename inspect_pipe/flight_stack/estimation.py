@@ -19,7 +19,14 @@ import math
 from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.clearance import Clearances
-from inspect_pipe.flight_stack.messages import Clearance, EstimationMode, Measurements, StateEstimate
+from inspect_pipe.flight_stack.messages import (
+    BottomFlow,
+    Clearance,
+    EstimationMode,
+    FrontFlow,
+    Measurements,
+    StateEstimate,
+)
 from inspect_pipe.flight_stack.observers import HeightEstimator, RangeObserver, SpeedObserver
 from inspect_pipe.flight_stack.obstacle_memory import ObstacleMemory
 from inspect_pipe.flight_stack.params import BehaviorParams, EstimationParams
@@ -263,7 +270,6 @@ class MAVStateUpdater:
         (``_horizontal_speeds``), so one observer holds the speed and the accelerometer's bias
         along x (a range observer with a rate and bias of its own learnt the swings of single
         noisy flow readings: docs/flight.md)."""
-        p = self.p
         self.front.propagate(now, rate=-vx)
         fs = m.front_sonar
         if fs is not None and fs.range_m is not None and self._ledger.new("front_range", fs.stamp_s):
@@ -420,13 +426,11 @@ class MAVStateUpdater:
         vx_prev = self.obs[0].v
         vz_prev = self.obs[2].v
         if bflow is not None:
-            bflow = dataclasses.replace(
-                bflow, vx_m_s=bflow.vx_m_s + pitch * vz_prev, vy_m_s=bflow.vy_m_s - roll * vz_prev
-            )
+            bflow = BottomFlow(bflow.stamp_s, bflow.vx_m_s + pitch * vz_prev, bflow.vy_m_s - roll * vz_prev, bflow.quality)
         if fflow is not None:
             vx = bflow.vx_m_s if bflow is not None else vx_prev
-            fflow = dataclasses.replace(
-                fflow, vy_m_s=fflow.vy_m_s - roll * vz_prev, vz_m_s=fflow.vz_m_s - pitch * vx + roll * fflow.vy_m_s
+            fflow = FrontFlow(
+                fflow.stamp_s, fflow.vy_m_s - roll * vz_prev, fflow.vz_m_s - pitch * vx + roll * fflow.vy_m_s, fflow.quality
             )
         return bflow, fflow
 

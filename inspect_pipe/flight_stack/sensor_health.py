@@ -10,9 +10,8 @@ which :func:`~inspect_pipe.flight_stack.estimation.select_mode` maps to the mode
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
-from inspect_pipe.flight_stack.messages import Measurements, RangeReading
+from inspect_pipe.flight_stack.messages import Measurements, RangeReading, message
 from inspect_pipe.flight_stack.observers import SpeedObserver, StuckCheck
 from inspect_pipe.flight_stack.params import EstimationParams
 
@@ -30,7 +29,7 @@ TOF_LATENCY_S = 0.01
 __all__ = ["SONAR_FLOOR_M", "SONAR_LATENCY_S", "TOF_FLOOR_M", "TOF_LATENCY_S", "ReadingLedger", "SensorHealth", "SensorStatus", "fresh_range"]
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class SensorStatus:
     """Which sensors are valid this tick (the data columns of Table I)."""
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 from inspect_pipe.flight_stack.arbitration import MotorSchema, Multiplexer, Subsumption
 from inspect_pipe.flight_stack.behaviors._obstacle_math import clamp
@@ -24,11 +24,12 @@ from inspect_pipe.flight_stack.messages import (
     OperatorInput,
     SpeedCommand,
     StateEstimate,
+    message,
 )
 from inspect_pipe.flight_stack.params import BehaviorParams
 
 
-@dataclass(frozen=True, slots=True)
+@message
 class BehaviorsOutput:
     """The safe speed set-point, who shaped it, and whether flight is still viable."""
 
