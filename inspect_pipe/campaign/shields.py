@@ -283,10 +283,10 @@ class Px4LikeShield(_BaselineShield):
         self._stamps = {name: None for name, _ in _SONARS}
         self._map_stamp = -math.inf
         self._v_sp = (0.0, 0.0)  # the flight task's velocity set-point (heading frame)
+        self._dirs = [(math.cos(a), math.sin(a)) for a in (math.radians(i * self.p.bin_deg) for i in range(n))]
 
     def _bin_dir(self, i: int) -> tuple[float, float]:
-        a = math.radians(i * self.p.bin_deg)
-        return math.cos(a), math.sin(a)
+        return self._dirs[i]
 
     def _bin_of(self, ux: float, uy: float) -> int:
         return int(math.floor((math.degrees(math.atan2(uy, ux)) % 360.0) / self.p.bin_deg)) % self._n
