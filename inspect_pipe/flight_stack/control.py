@@ -263,8 +263,13 @@ class FlightController:
             if self.vertical_mode is not VerticalMode.HEIGHT or self.height_ref_m is None:
                 if self.height_ref_m is None:
                     # Hold where the vehicle will come to rest, not where the stick was centred:
-                    # no bounce back after a climb or a descent.
-                    self.height_ref_m = est.altitude_m + est.vz_m_s * self.latch_lead_s
+                    # no bounce back after a climb or a descent. Its speed is the one the speed
+                    # loop was driving it at (the reference model below), not the estimate of
+                    # that tick: scaled by the lead, one noisy reading moved the hold by 0.19 m
+                    # (a 0.15 s climb ended 0.13 m lower than it began, and over a coaming the
+                    # rotors then skimmed its top: docs/flight.md, Session 35).
+                    vz = self._vz_ref if self._vz_ref is not None else est.vz_m_s
+                    self.height_ref_m = est.altitude_m + vz * self.latch_lead_s
                 # Bumpless hand-over: the speed loop's trim becomes the height loop's.
                 self.pid_height.reset(self.pid_vz.integral)
             err = self.height_ref_m - est.altitude_m

@@ -42,11 +42,15 @@ def test_hover_thrust_at_rest_and_tilt_compensation():
 
 def test_height_pid_replaces_vertical_speed_pid_when_vz_command_is_zero():
     c = FlightController()
-    c.update(SpeedCommand(0, 0, 0.3, 0), _est(alt=1.0, vz=0.3), 0.02)
+    for k in range(50):  # a 1 s climb at 0.3 m/s
+        c.update(SpeedCommand(0, 0, 0.3, 0), _est(alt=1.0 + 0.006 * k, vz=0.3), 0.02)
     assert c.vertical_mode is VerticalMode.SPEED
-    c.update(SpeedCommand(), _est(alt=1.2, vz=0.2), 0.02)
+    # The stick is centred on a tick whose speed estimate is noise (-0.4 m/s): the height is
+    # latched where the climb the loop was flying comes to rest (+0.3 m/s x the lead), not
+    # where that reading says (0.21 m lower).
+    c.update(SpeedCommand(), _est(alt=1.3, vz=-0.4), 0.02)
     assert c.vertical_mode is VerticalMode.HEIGHT
-    assert c.height_ref_m == pytest.approx(1.2 + 0.2 * BehaviorParams().response_time_s)
+    assert c.height_ref_m == pytest.approx(1.3 + 0.3 * BehaviorParams().response_time_s, abs=0.005)
     low = c.update(SpeedCommand(), _est(alt=1.0, vz=0.0), 0.02)
     assert low.thrust_frac > ControlParams().hover_thrust_frac  # below the reference: climb
 
