@@ -266,7 +266,7 @@ class FlightController:
                     # no bounce back after a climb or a descent. Its speed is the one the speed
                     # loop was driving it at (the reference model below), not the estimate of
                     # that tick: scaled by the lead, one noisy reading moved the hold by 0.19 m
-                    # (a 0.15 s climb ended 0.13 m lower than it began, and over a coaming the
+                    # (a 0.15 s climb latched 0.1 m below where it began, and over a coaming the
                     # rotors then skimmed its top: docs/flight.md, Session 35).
                     vz = self._vz_ref if self._vz_ref is not None else est.vz_m_s
                     self.height_ref_m = est.altitude_m + vz * self.latch_lead_s
