@@ -180,7 +180,8 @@ class OnboardStack:
         )
 
     def _finish_takeoff_climb(self, cmd: SpeedCommand, est: StateEstimate, dt: float) -> None:
-        """Keep the take-off's hover height as the floor of the height hold until it is reached.
+        """Keep the take-off's hover height (or the height held before an alarm mode, which
+        ``_resume_height_after_alarm`` sets) as the floor of the height hold until it is reached.
 
         The flight machine hands over to FLYING at ``flying_height_m`` (0.5 m); a slow climb
         (heavy vehicle, weak motors) then met an operator's short climb command that was meant to
@@ -216,7 +217,9 @@ class OnboardStack:
 
         Left where the alarm descent ended, the vehicle flew on 1 m lower than the operator had
         put it, level with coamings the operator had cleared (safety campaign: bottom flow lost
-        for 3 s at 1.7 m, then a 0.77 m box). The operator's own vertical command ends it."""
+        for 3 s at 1.7 m, then a 0.77 m box). The climb back is ``_finish_takeoff_climb``'s, as
+        after a take-off: the operator's descent ends it, a climb the operator asks for meanwhile
+        is added to it."""
         ctrl = self.controller
         if alarm and not self._was_alarm:
             self._pre_alarm_height_m = ctrl.height_ref_m

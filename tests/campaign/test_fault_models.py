@@ -143,3 +143,24 @@ def test_a_climb_asked_for_before_a_slow_take_off_reaches_its_hover_height_start
     final = heights[-1][1]
     assert final == pytest.approx(1.52, abs=0.12)
     assert max(z for _, z, _ in heights) < final + 0.15
+
+
+@pytest.mark.parametrize("climb_s, above_m", [(0.0, 0.0), (0.5, 0.2)])
+def test_after_an_alarm_descent_the_height_held_before_it_is_resumed_and_a_climb_during_it_added(climb_s, above_m):
+    from inspect_pipe.flight import run_scenario
+
+    # GIVEN a vehicle holding about 1.6 m when every range sensor is lost for 4 s (mode -2: the
+    # alarm descent takes it down about 0.7 m), and an operator who, once the sensors are back,
+    # climbs at 0.4 m/s for ``climb_s`` while the vehicle is still climbing back
+    ops = [{"t": 0.5, "button": "takeoff"}, {"t": 5.0, "stick": {"vz": 0.4}}, {"t": 6.5, "stick": {"vz": 0.0}}]
+    if climb_s:
+        ops += [{"t": 13.5, "stick": {"vz": 0.4}}, {"t": 13.5 + climb_s, "stick": {"vz": 0.0}}]
+    doc = {**BASE, "duration_s": 24, "operator": ops, "faults": [{"t": 9.0, "fault": "range_loss", "duration_s": 4.0}]}
+    rows = []
+    run_scenario(parse_scenario(doc), on_tick=lambda r: rows.append((r.t, r.pos_true[2])))
+    before = [z for t, z in rows if 8.5 <= t <= 9.0]
+    held = sum(before) / len(before)
+    assert min(z for t, z in rows if 9.0 <= t <= 13.5) < held - 0.5  # the alarm descent happened
+    # THEN it settles at the height held before the alarm, plus the operator's climb (0.4 m/s x
+    # climb_s): the climb starts from the resumed height, not from where the descent ended
+    assert rows[-1][1] == pytest.approx(held + above_m, abs=0.1)
