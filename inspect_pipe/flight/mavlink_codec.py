@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import NamedTuple
 from dataclasses import dataclass
 
 from inspect_pipe.flight_stack.messages import SpeedCommand
@@ -30,6 +31,7 @@ __all__ = [
     "VELOCITY_ONLY_MASK",
     "attitude_from_world",
     "distance_slot",
+    "FlowFromRad",
     "flow_from_rad",
     "flow_to_rad",
     "heading_accel_from_imu",
@@ -169,26 +171,50 @@ class FlowRad:
 
 
 def flow_to_rad(a_m_s: float, b_m_s: float, quality: int, distance_m: float | None, dt_s: float,
-                gyro_x_rad_s: float = 0.0, gyro_y_rad_s: float = 0.0) -> FlowRad:
+                gyro_x_rad_s: float = 0.0, gyro_y_rad_s: float = 0.0,
+                rates_rad_s: tuple[float, float] | None = None) -> FlowRad:
     """Metric flow (bottom: vx, vy; front: vy, vz) -> angular flow over ``dt_s``.
 
     ``a`` goes to ``integrated_y`` (motion along the sensor's X), ``b`` to ``integrated_x``.
+    Without a distance the unit has no metric flow: its angular flow ``rates_rad_s`` (a, b) is
+    sent with ``distance`` -1 (unknown), as the PX4Flow does; without that either, quality 0.
     """
     gx, gy = gyro_x_rad_s * dt_s, gyro_y_rad_s * dt_s
-    if distance_m is None or distance_m <= 0.0 or quality <= 0:
-        return FlowRad(gx, gy, gx, gy, int(dt_s * 1e6), -1.0, 0)
-    return FlowRad(b_m_s * dt_s / distance_m + gx, a_m_s * dt_s / distance_m + gy, gx, gy, int(round(dt_s * 1e6)), distance_m, quality)
+    us = int(round(dt_s * 1e6))
+    if distance_m is not None and distance_m > 0.0 and quality > 0:
+        return FlowRad(b_m_s * dt_s / distance_m + gx, a_m_s * dt_s / distance_m + gy, gx, gy, us, distance_m, quality)
+    if rates_rad_s is not None and quality > 0:
+        ra, rb = rates_rad_s
+        return FlowRad(rb * dt_s + gx, ra * dt_s + gy, gx, gy, us, -1.0, quality)
+    return FlowRad(gx, gy, gx, gy, int(dt_s * 1e6), -1.0, 0)
+
+
+class FlowFromRad(NamedTuple):
+    """An ``OPTICAL_FLOW_RAD`` message as the stack takes it: the metric flow (a, b; 0 without a
+    distance), the quality, the angular flow (a, b, rad/s, gyro compensated; None when the
+    message has no valid integration) and whether the metric flow has its distance's scale."""
+
+    a_m_s: float
+    b_m_s: float
+    quality: int
+    rate_a_rad_s: float | None
+    rate_b_rad_s: float | None
+    scaled: bool
 
 
 def flow_from_rad(integrated_x: float, integrated_y: float, integrated_xgyro: float, integrated_ygyro: float,
-                  integration_time_us: int, distance_m: float, quality: int) -> tuple[float, float, int]:
-    """Angular flow -> metric flow (a, b, quality), gyro compensated; quality 0 without scale."""
+                  integration_time_us: int, distance_m: float, quality: int) -> FlowFromRad:
+    """Angular flow -> metric flow, gyro compensated; a distance of 0 or less (unknown) leaves the
+    angular flow alone, unscaled."""
     dt = integration_time_us * 1e-6
-    if dt <= 0.0 or distance_m <= 0.0 or not all(map(math.isfinite, (integrated_x, integrated_y, distance_m))):
-        return 0.0, 0.0, 0
-    a = (integrated_y - integrated_ygyro) * distance_m / dt
-    b = (integrated_x - integrated_xgyro) * distance_m / dt
-    return a, b, max(0, min(255, int(quality)))
+    if dt <= 0.0 or not all(map(math.isfinite, (integrated_x, integrated_y, integrated_xgyro, integrated_ygyro))):
+        return FlowFromRad(0.0, 0.0, 0, None, None, False)
+    ra = (integrated_y - integrated_ygyro) / dt
+    rb = (integrated_x - integrated_xgyro) / dt
+    q = max(0, min(255, int(quality)))
+    if not math.isfinite(distance_m) or distance_m <= 0.0:
+        return FlowFromRad(0.0, 0.0, q, ra, rb, False)
+    return FlowFromRad(ra * distance_m, rb * distance_m, q, ra, rb, True)
 
 
 # --------------------------------------------------------------------------- attitude and IMU

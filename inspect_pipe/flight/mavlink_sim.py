@@ -381,10 +381,13 @@ class SimulatedAutopilot:
                 continue
             prev[name] = f
             a, b = (f.vx_m_s, f.vy_m_s) if sid == 0 else (f.vy_m_s, f.vz_m_s)
-            d = sonar.range_m if sonar is not None and sonar.range_m else 1.0
+            rates = (f.rate_x_rad_s, f.rate_y_rad_s) if sid == 0 else (f.rate_y_rad_s, f.rate_z_rad_s)
+            d = (sonar.range_m if sonar is not None and sonar.range_m else 1.0) if f.scaled else None
             # The gyro fields carry what was subtracted (the receiver takes it out again); the
-            # unit's own compensation error is already in the metric flow.
-            fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, q)
+            # unit's own compensation error is already in the metric flow. Without its sonar's
+            # range the unit sends its angular flow with distance -1.
+            fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, q,
+                                rates if None not in rates else None)
             ep.send(C.MAVLink_optical_flow_rad_message(us, sid, fr.integration_time_us, fr.integrated_x, fr.integrated_y,
                                                        fr.integrated_xgyro, fr.integrated_ygyro, 0.0, 2000, fr.quality, 0, fr.distance_m))
 

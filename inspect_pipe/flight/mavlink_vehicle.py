@@ -161,13 +161,13 @@ class MavlinkLink:
                 with self._lock:
                     self._ranges[slot] = RangeReading(now, mc.range_from_cm(m.current_distance, m.min_distance, m.max_distance))
         elif kind == "OPTICAL_FLOW_RAD":
-            a, b, q = mc.flow_from_rad(m.integrated_x, m.integrated_y, m.integrated_xgyro, m.integrated_ygyro,
-                                       m.integration_time_us, m.distance, m.quality)
+            f = mc.flow_from_rad(m.integrated_x, m.integrated_y, m.integrated_xgyro, m.integrated_ygyro,
+                                 m.integration_time_us, m.distance, m.quality)
             with self._lock:
                 if m.sensor_id == 0:
-                    self._bottom_flow = BottomFlow(now, a, b, q)
+                    self._bottom_flow = BottomFlow(now, f.a_m_s, f.b_m_s, f.quality, f.rate_a_rad_s, f.rate_b_rad_s, f.scaled)
                 elif m.sensor_id == 1:
-                    self._front_flow = FrontFlow(now, a, b, q)
+                    self._front_flow = FrontFlow(now, f.a_m_s, f.b_m_s, f.quality, f.rate_a_rad_s, f.rate_b_rad_s, f.scaled)
         elif kind == "ATTITUDE":
             if all(math.isfinite(v) for v in (m.roll, m.pitch, m.yaw)):
                 self.attitude = (m.roll, m.pitch, m.yaw)

@@ -4,7 +4,8 @@
   velocity across its axis over the distance along it, plus the body rotation; the unit's own
   gyro (bias, scale error, noise) takes the rotation out and its own sonar's last range scales
   what is left to metres per second, as the PX4Flow firmware does. Angular noise and quality
-  0..255 follow the texture and the light (quality 0 without a sonar echo: no metric scale); its
+  0..255 follow the texture and the light; without a sonar echo it has no metric scale (its
+  metric flow reads 0) but still measures the angular flow, as the unit's ``OPTICAL_FLOW_RAD`` does; its
   MaxBotix HRLV-EZ4 sonar at 10 Hz, 0.3..5 m, 50 ms latency.
 * Side HRLV-EZ4 sonars (left, right): 10 Hz, 5 m.
 * Every horizontal sonar has a beam, not a ray: an ultrasonic ranger reports its first echo, the
@@ -269,6 +270,7 @@ class SensorSuite:
         self.echo_rng = random.Random(seed * 15485863 + 41)  # sonar misses at shallow incidence
         self._px_true: dict[str, float | None] = {"bottom_flow": None, "front_flow": None}
         self.noise = _NormalStream(seed * 104729 + 11)  # per-sample measurement noise
+        self._unscaled_noise = _NormalStream(seed * 104729 + 53, block=1024)  # PX4Flow readings without a range
         # Heading drift of a gyro-only attitude estimate (no usable compass in a steel hold); its
         # own generator, so the other noise sequences stay as they were.
         self._yaw_drift_rad_s = random.Random(seed * 7919 + 29).gauss(0.0, self.s.imu.yaw_drift_rad_s)
@@ -359,6 +361,10 @@ class SensorSuite:
                 if name.endswith("flow") or (faults.range_loss and name in ("bottom_sonar", "front_sonar")):
                     self._px_range[name.replace("sonar", "flow")] = None
                     self._px_true[name.replace("sonar", "flow")] = None
+                    if not name.endswith("flow"):  # the unit's camera still sees along its axis
+                        if pos is None:
+                            pos = sim.position
+                        self._px_true[name.replace("sonar", "flow")] = sim.first_echo(pos, dirs[:1])
                 continue
             stamp = t + ch.latency  # delivery time: what the onboard clock stamps
             if faulty:
@@ -416,10 +422,13 @@ class SensorSuite:
         (vbx, vby, vbz), (p, q, r) = kin
         fl = self.s.flow
         scale_range, true_range = self._px_range[name], self._px_true[name]
-        g = self.noise.gauss
         faults = self._faults
-        if scale_range is None or not true_range:
-            return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, 0.0, 0.0, 0)  # no metric scale
+        if not true_range:
+            return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, 0.0, 0.0, 0)  # nothing in view
+        # Without its sonar's range the unit still measures the angular flow (and its quality);
+        # the metric flow reads 0. Those readings draw from a generator of their own, so flights
+        # where every unit has its range keep their noise sequences.
+        g = self.noise.gauss if scale_range is not None else self._unscaled_noise.gauss
         # Image quality: texture (the low_texture fault takes a share away) and light (the
         # vehicle's own light falls off as 1/d^2 beyond ``light_range_m``).
         texture = 1.0 - faults.low_texture.get(owner, 0.0) if faults.low_texture else 1.0
@@ -439,12 +448,16 @@ class SensorSuite:
             # Camera along +x: y flow = vy/d + r, z flow = vz/d - q.
             across, rot = (vby, vbz), (r, -q)
         bx, by = self.bias[name]
-        out = []
+        out, rates = [], []
         for v, w, gb, gsc, b in ((across[0], rot[0], gbx, gsx, bx), (across[1], rot[1], gby, gsy, by)):
             flow_rad_s = v / true_range + w
             compensated = flow_rad_s - (w * (1.0 + gsc) + gb + g(0.0, gn))
-            out.append((compensated + g(0.0, sigma)) * scale_range + b)
-        return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, out[0], out[1], quality)
+            rate = compensated + g(0.0, sigma)
+            rates.append(rate)
+            out.append(rate * scale_range + b if scale_range is not None else 0.0)
+        return (BottomFlow if name == "bottom_flow" else FrontFlow)(
+            stamp, out[0], out[1], quality, rates[0], rates[1], scale_range is not None
+        )
 
     def read(self, now: float, sim: QuadrotorSim) -> Measurements:
         """Latest reading each sensor has delivered by ``now``, and the IMU's mean specific force

@@ -65,7 +65,7 @@ class Source(enum.Enum):
     TERARANGER = "TeraRanger"
     HEIGHT_RATE = "height derivative"
     INTEGRATED = "integrated (front flow's vz, else +val)"
-    RANGE_RATES = "the IMU, corrected by the horizontal sonars' range rates"
+    RANGE_RATES = "the IMU, corrected by the bottom flow's angular rate at the height carried and the horizontal sonars' range rates"
     HEIGHT_RATE_AND_VAL = "TeraRanger derivative + val"
     CARRIED_AND_VAL = "the IMU (relaxing to 0) + val"
 
@@ -155,6 +155,10 @@ class MAVStateUpdater:
         self._had_imu = False  # an IMU reading has come (the first tick of a simulation has none)
         self._imu_silent = False  # the IMU went silent after it had spoken (see ``update``)
         self._imu_dt = 0.0  # time since the last IMU reading integrated into the speed observers
+        # The distance the bottom PX4Flow's camera sees: the height while a sensor measures it,
+        # carried on by the vertical speed in mode -2 (see _angular_bottom_flow).
+        self._below_m: float | None = None
+        self._last_flow_rates: tuple[float, float] | None = None
 
     @property
     def imu_bias(self) -> tuple[float, float, float]:
@@ -204,7 +208,13 @@ class MAVStateUpdater:
             self._imu_dt = 0.0
         self.health.restart_after_stuck_flow(self.obs)
 
-        vx, vy = self._horizontal_speeds(now, m, feeds, status, bflow, fflow)
+        if mode is EstimationMode.ALARM_NONE:
+            if self._below_m is not None:
+                self._below_m += self.obs[2].v * dt
+        else:
+            self._below_m = self.height.height_m
+        live = self._live_flow_rates(m)
+        vx, vy = self._horizontal_speeds(now, m, feeds, status, bflow, fflow, live)
         self._front_range(now, m, vx)
         if self._yaw is not None:
             self.memory.advance(now, vx, vy, self._yaw, altitude_m=self.height.altitude_m, measured=mode >= 0)
@@ -276,7 +286,7 @@ class MAVStateUpdater:
             self.front.correct(fs.range_m, fs.stamp_s - SONAR_LATENCY_S)
 
     def _horizontal_speeds(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus,
-                           bflow, fflow) -> tuple[float, float]:
+                           bflow, fflow, live_rates: tuple[float, float] | None) -> tuple[float, float]:
         """Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front sonar's
         range rate and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
         (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
@@ -319,8 +329,47 @@ class MAVStateUpdater:
             if self._ledger.new("front_flow_vy", fflow.stamp_s):  # one key for this use in every mode
                 oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m, fflow.quality))  # type: ignore[union-attr,arg-type]
         else:
+            self._angular_bottom_flow(now, m, live_rates)
             self.rates.correct(now, self._yaw, self.obs)
         return ox.v, oy.v
+
+    def _live_flow_rates(self, m: Measurements) -> tuple[float, float] | None:
+        """The bottom PX4Flow's angular flow if this tick brings a new reading that does not repeat
+        the one before it bit for bit (a stuck unit repeats its last reading, freshly stamped: the
+        first repetition is already the same value), else None. Every reading is compared, in
+        every mode, so a unit that stuck before an alarm mode began is known as stuck in it."""
+        bf = m.bottom_flow
+        if bf is None or bf.rate_x_rad_s is None or bf.rate_y_rad_s is None or not self._ledger.new("bottom_flow_rates", bf.stamp_s):
+            return None
+        rates, last = (bf.rate_x_rad_s, bf.rate_y_rad_s), self._last_flow_rates
+        self._last_flow_rates = rates
+        return None if rates == last else rates
+
+    def _angular_bottom_flow(self, now: float, m: Measurements, rates: tuple[float, float] | None) -> None:
+        """The alarm modes' speed measurement under the vehicle: the bottom PX4Flow's angular flow
+        (rad/s, the unit's gyro compensation in it) times the distance its camera sees, the height
+        while the TeraRanger measures it (mode -1), else the last height measured carried on by the
+        vertical speed (mode -2). Without its sonar the unit has no metric flow, but its camera
+        still measures the angular one (``OPTICAL_FLOW_RAD``, which PX4's EKF2 and ArduPilot's EKF
+        scale by their own height estimate). Carried by the IMU alone, the speeds drifted with the
+        autopilot's attitude-estimate error (0.1 m/s^2 for half a degree): 0.3 m in a 2.7 s loss
+        of every range sensor during a link-loss hold, 0.48 m under rotor vibration, a collision
+        with a wall 1.1 m away (docs/flight.md, Session 36). A wrong distance (a box passed under
+        the vehicle while blind) scales the speed, not its sign: the alarm modes command no
+        horizontal speed, and a hold's zero is measured whatever the scale. The bias is not learnt
+        from it. ``rates``: this tick's new reading, None when there is none or it repeats the one
+        before it bit for bit (a stuck unit's, :meth:`_live_flow_rates`)."""
+        p, bf = self.p, m.bottom_flow
+        if rates is None or bf is None or self._below_m is None or now - bf.stamp_s > p.flow_timeout_s or bf.quality < p.flow_min_quality:
+            return
+        d = max(self._below_m, SONAR_FLOOR_M)
+        flow = BottomFlow(bf.stamp_s, rates[0] * d, rates[1] * d, bf.quality)
+        if m.imu is not None:
+            flow, _ = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, flow, None)
+        noise = self._flow_noise(d, bf.quality)
+        ox, oy, _ = self.obs
+        ox.correct(flow.vx_m_s, noise, learn_bias=False)
+        oy.correct(flow.vy_m_s, noise, learn_bias=False)
 
     def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
         """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:

@@ -91,22 +91,32 @@ class RangeReading:
 
 @message
 class BottomFlow:
-    """Bottom-looking PX4Flow metric flow: speed over the floor (m/s), quality 0..255."""
+    """Bottom-looking PX4Flow: metric flow, the speed over the floor (m/s; 0 without its sonar's
+    range, which scales it), the image's quality 0..255, and the angular flow it scaled (rad/s,
+    the body rotation taken out by the unit's gyro; MAVLink ``OPTICAL_FLOW_RAD``), which the unit
+    measures with or without a range. None where the source gives no angular flow."""
 
     stamp_s: float
     vx_m_s: float
     vy_m_s: float
     quality: int
+    rate_x_rad_s: float | None = None
+    rate_y_rad_s: float | None = None
+    scaled: bool = True  # the metric flow had its sonar's range (else it reads 0)
 
 
 @message
 class FrontFlow:
-    """Forward-looking PX4Flow metric flow: speed along the front wall (m/s), quality 0..255."""
+    """Forward-looking PX4Flow: metric flow, the speed along the front wall (m/s; 0 without its
+    sonar's range), the image's quality 0..255, and the angular flow (rad/s), as :class:`BottomFlow`."""
 
     stamp_s: float
     vy_m_s: float
     vz_m_s: float
     quality: int
+    rate_y_rad_s: float | None = None
+    rate_z_rad_s: float | None = None
+    scaled: bool = True  # the metric flow had its sonar's range (else it reads 0)
 
 
 G_M_S2 = 9.81  # standard gravity

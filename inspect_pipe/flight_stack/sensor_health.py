@@ -83,8 +83,10 @@ class SensorHealth:
         b_sonar = fresh_range(m.bottom_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m)
         f_sonar = fresh_range(m.front_sonar, now, p.sonar_timeout_s, p.sonar_max_range_m)
         bf, ff = m.bottom_flow, m.front_flow
-        b_flow = bf is not None and now - bf.stamp_s <= p.flow_timeout_s and bf.quality >= p.flow_min_quality
-        f_flow = ff is not None and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
+        # A metric flow needs its own sonar's echo, which scales it (without one it reads 0,
+        # whatever its image's quality).
+        b_flow = bf is not None and bf.scaled and now - bf.stamp_s <= p.flow_timeout_s and bf.quality >= p.flow_min_quality
+        f_flow = ff is not None and ff.scaled and now - ff.stamp_s <= p.flow_timeout_s and ff.quality >= p.flow_min_quality
         imu = m.imu
         ax, ay, az = (imu.ax_m_s2, imu.ay_m_s2, imu.az_m_s2) if imu is not None else (0.0, 0.0, 0.0)
         bx, by, bz = (o.b for o in obs)

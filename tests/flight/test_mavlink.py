@@ -74,11 +74,20 @@ def test_imu_round_trip_at_an_angle() -> None:
 
 def test_flow_and_range_encoding() -> None:
     fr = mc.flow_to_rad(0.3, -0.1, 200, 1.5, 0.01, gyro_x_rad_s=0.4, gyro_y_rad_s=-0.2)
-    a, b, q = mc.flow_from_rad(fr.integrated_x, fr.integrated_y, fr.integrated_xgyro, fr.integrated_ygyro,
-                               fr.integration_time_us, fr.distance_m, fr.quality)
-    assert (a, b, q) == (pytest.approx(0.3), pytest.approx(-0.1), 200)
+    got = mc.flow_from_rad(fr.integrated_x, fr.integrated_y, fr.integrated_xgyro, fr.integrated_ygyro,
+                           fr.integration_time_us, fr.distance_m, fr.quality)
+    assert (got.a_m_s, got.b_m_s, got.quality, got.scaled) == (pytest.approx(0.3), pytest.approx(-0.1), 200, True)
+    assert (got.rate_a_rad_s, got.rate_b_rad_s) == (pytest.approx(0.2), pytest.approx(-0.1 / 1.5))
+    # Without a sonar echo: nothing to send but quality 0, unless the unit's angular flow is given,
+    # which goes out with distance -1 and comes back unscaled (metric 0, the rates kept).
     no_echo = mc.flow_to_rad(0.3, 0.0, 200, None, 0.01)
-    assert mc.flow_from_rad(no_echo.integrated_x, no_echo.integrated_y, 0, 0, 10000, no_echo.distance_m, no_echo.quality)[2] == 0
+    assert mc.flow_from_rad(no_echo.integrated_x, no_echo.integrated_y, 0, 0, 10000, no_echo.distance_m, no_echo.quality).quality == 0
+    blind = mc.flow_to_rad(0.0, 0.0, 180, None, 0.01, gyro_x_rad_s=0.4, rates_rad_s=(0.05, -0.02))
+    assert blind.distance_m == -1.0 and blind.quality == 180
+    got = mc.flow_from_rad(blind.integrated_x, blind.integrated_y, blind.integrated_xgyro, blind.integrated_ygyro,
+                           blind.integration_time_us, blind.distance_m, blind.quality)
+    assert (got.a_m_s, got.b_m_s, got.quality, got.scaled) == (0.0, 0.0, 180, False)
+    assert (got.rate_a_rad_s, got.rate_b_rad_s) == (pytest.approx(0.05), pytest.approx(-0.02))
     assert mc.range_from_cm(mc.range_to_cm(None, 500), 30, 500) is None
     assert mc.range_from_cm(mc.range_to_cm(1.234, 500), 30, 500) == pytest.approx(1.23)
     assert mc.distance_slot(mc.MAV_DISTANCE_SENSOR_LASER, mc.MAV_SENSOR_ROTATION_PITCH_270) is mc.DistanceSlot.BOTTOM_TOF

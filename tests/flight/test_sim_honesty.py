@@ -107,6 +107,24 @@ def test_flow_gyro_compensation_leaves_only_its_error():
     assert abs(vx) > 0.001
 
 
+def test_without_its_sonar_a_px4flow_still_measures_angular_flow():
+    # GIVEN every range sensor lost (range_loss) while the vehicle yaws at 0.5 rad/s in place,
+    # 1.08 m above the floor and looking at the front wall
+    lost = _still(0.0, SensorFaults(range_loss=True), rates=(0.0, 0.0, 0.5))[50:]
+    flows = [x.front_flow for x in lost if x.front_flow] + [x.bottom_flow for x in lost if x.bottom_flow]
+    # THEN no metric flow (its scale is the lost sonar's range), but the image's quality and the
+    # angular flow, gyro compensated, are there: what is left of the rotation is the unit's gyro error
+    assert flows and all(not f.scaled and f.vx_m_s == 0.0 for f in flows if hasattr(f, "vx_m_s"))
+    assert all(not f.scaled and f.vy_m_s == 0.0 for f in flows if hasattr(f, "vz_m_s"))
+    assert statistics.fmean(f.quality for f in flows) > 100
+    yaw_flow = statistics.fmean(f.rate_y_rad_s for f in flows if hasattr(f, "vz_m_s"))
+    assert abs(yaw_flow) < 0.05  # 0.5 rad/s uncompensated
+    # AND with the sonars the same units scale it: metric = angular x range (+ the unit's small bias)
+    live = [x.bottom_flow for x in _still(0.0)[50:] if x.bottom_flow and x.bottom_flow.quality]
+    assert all(f.scaled for f in live)
+    assert statistics.fmean(abs(f.vx_m_s - f.rate_x_rad_s * 1.08) for f in live) < 0.01
+
+
 def test_flow_quality_falls_on_low_texture():
     good = [x.bottom_flow.quality for x in _still(0.0)[50:] if x.bottom_flow]
     poor = [x.bottom_flow.quality for x in _still(0.0, SensorFaults(low_texture={SensorName.BOTTOM_FLOW: 0.8}))[50:] if x.bottom_flow]

@@ -54,6 +54,7 @@ def test_table1_rows_say_which_measurement_feeds_each_state_as_the_paper_does():
     for mode in (EstimationMode.ALARM_TOF, EstimationMode.ALARM_NONE):
         f = TABLE_I[mode]
         assert f.vx is f.vy is S.RANGE_RATES and "val" in f.vz.value
+        assert "bottom flow's angular rate" in f.vx.value
     assert TABLE_I[EstimationMode.ALARM_TOF].height is S.TERARANGER
 
 
@@ -381,6 +382,64 @@ def test_alarm_mode_carried_speed_removes_the_accelerometer_bias_learnt_on_the_f
     assert abs(est.vx_m_s) < 0.005
     # AND without it, it settles near bias x leak time (0.09 m/s), which the speed loop would fly
     assert carried((0.0, 0.0, 0.0)).vx_m_s > 0.06
+
+
+def _blind(seconds, *, accel, speed=(0.0, 0.0), angular=True, tof=False, below=2.0, seed=5, stuck=None):
+    """Hover 1 s in mode 0 at ``below`` m, then every range sensor lost (mode -2; with ``tof``, the
+    TeraRanger stays: mode -1) for ``seconds`` while the vehicle flies at ``speed`` and the IMU reads
+    a false acceleration ``accel`` (an attitude-estimate error). The bottom PX4Flow, its sonar lost,
+    keeps its angular flow (0.02 rad/s of noise, 100 Hz) unless ``angular`` is False; ``stuck``: the
+    angular flow it repeats bit for bit once blind."""
+    rng = random.Random(seed)
+    upd, est = MAVStateUpdater(), None
+    for k in range(int((1.0 + seconds) / 0.01)):
+        t = 0.01 * k
+        blind = t >= 1.0
+        vx, vy = speed if blind else (0.0, 0.0)
+        rates = (vx / below + rng.gauss(0.0, 0.02), vy / below + rng.gauss(0.0, 0.02))
+        flow = BottomFlow(t, 0.0, 0.0, 200, *rates, scaled=False) if blind else BottomFlow(t, *(r * below for r in rates), 200, *rates)
+        if stuck is not None and t >= 1.0 - 0.015:
+            # a stuck unit repeats its last reading, freshly stamped (as the simulator's stuck_reading)
+            flow = BottomFlow(t, stuck[0] * below, stuck[1] * below, 200, *stuck)
+        m = Measurements(
+            bottom_flow=flow if (angular or not blind) else None,
+            bottom_sonar=None if blind else RangeReading(t, below),
+            bottom_tof=RangeReading(t, below) if (tof or not blind) else None,
+            imu=ImuReading.level(t, accel if blind else 0.0, 0.0, 0.0, 0.0),
+        )
+        est = upd.update(t, m)[0]
+    return est
+
+
+def test_blind_the_bottom_flows_angular_rate_at_the_carried_height_measures_the_speed():
+    # GIVEN every range sensor lost for 3 s while hovering still, the IMU reading 0.1 m/s^2 of
+    # false acceleration (0.6 deg of attitude-estimate error)
+    est = _blind(3.0, accel=0.1)
+    # THEN the bottom PX4Flow's angular flow, scaled by the height carried since the loss, holds
+    # the speed at rest
+    assert est.mode == EstimationMode.ALARM_NONE
+    assert abs(est.vx_m_s) < 0.03
+    # AND without it the speed is the IMU's alone, which carries the error (0.1 x 3 s)
+    assert _blind(3.0, accel=0.1, angular=False).vx_m_s > 0.2
+    # AND a moving vehicle's speed is measured too (mode -2 at 0.3 m/s, mode -1 with the TeraRanger's range)
+    assert _blind(3.0, accel=0.0, speed=(0.3, -0.2)).vx_m_s == pytest.approx(0.3, abs=0.03)
+    est = _blind(3.0, accel=0.0, speed=(0.3, -0.2), tof=True)
+    assert est.mode == EstimationMode.ALARM_TOF
+    assert (est.vx_m_s, est.vy_m_s) == pytest.approx((0.3, -0.2), abs=0.03)
+
+
+def test_blind_a_stuck_angular_flow_is_not_taken():
+    # GIVEN every range sensor lost while hovering still, and the bottom flow stuck on its last
+    # reading before the loss, 0.2 rad/s (0.4 m/s at 2 m), repeated bit for bit
+    est = _blind(3.0, accel=0.0, stuck=(0.2, 0.0))
+    # THEN no repetition is taken: the speed is what it is with no flow at all once blind (the
+    # stuck readings mode 0 took before the loss moved it by a few cm/s), not the stuck 0.4 m/s
+    assert est.mode == EstimationMode.ALARM_NONE
+    no_flow = _blind(3.0, accel=0.0, stuck=(0.2, 0.0), angular=False)
+    assert est.vx_m_s == pytest.approx(no_flow.vx_m_s, abs=1e-3)
+    assert abs(est.vx_m_s) < 0.1
+    # AND a live reading of the same speed is taken (the check is the repetition, not the value)
+    assert _blind(3.0, accel=0.0, speed=(0.4, 0.0)).vx_m_s == pytest.approx(0.4, abs=0.04)
 
 
 def test_a_stuck_flow_is_judged_against_the_filtered_speed_not_its_own_noisy_reading():
