@@ -67,7 +67,7 @@ class Source(enum.Enum):
     INTEGRATED = "integrated (front flow's vz, else +val)"
     RANGE_RATES = "the IMU, corrected by the bottom flow's angular rate at the height carried and the horizontal sonars' range rates"
     HEIGHT_RATE_AND_VAL = "TeraRanger derivative + val"
-    CARRIED_AND_VAL = "the IMU (relaxing to 0) + val"
+    CARRIED_AND_VAL = "the IMU, corrected by the front flow's angular rate at the front range carried (relaxing to 0), + val"
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +158,7 @@ class MAVStateUpdater:
         # The distance the bottom PX4Flow's camera sees: the height while a sensor measures it,
         # carried on by the vertical speed in mode -2 (see _angular_bottom_flow).
         self._below_m: float | None = None
-        self._last_flow_rates: tuple[float, float] | None = None
+        self._last_flow_rates: dict[str, tuple[float, float]] = {}  # per PX4Flow, its last angular reading
 
     @property
     def imu_bias(self) -> tuple[float, float, float]:
@@ -213,7 +213,7 @@ class MAVStateUpdater:
                 self._below_m += self.obs[2].v * dt
         else:
             self._below_m = self.height.height_m
-        live = self._live_flow_rates(m)
+        live = (self._live_flow_rates("bottom", m.bottom_flow), self._live_flow_rates("front", m.front_flow))
         vx, vy = self._horizontal_speeds(now, m, feeds, status, bflow, fflow, live)
         self._front_range(now, m, vx)
         if self._yaw is not None:
@@ -286,7 +286,7 @@ class MAVStateUpdater:
             self.front.correct(fs.range_m, fs.stamp_s - SONAR_LATENCY_S)
 
     def _horizontal_speeds(self, now: float, m: Measurements, feeds: Feeds, status: SensorStatus,
-                           bflow, fflow, live_rates: tuple[float, float] | None) -> tuple[float, float]:
+                           bflow, fflow, live_rates) -> tuple[float, float]:
         """Horizontal speeds (Table I): the bottom flow's (modes 0 and 1), else the front sonar's
         range rate and the front flow's vy (modes 2 and 3); each is a measurement of its axis's observer
         (``SpeedObserver``), and the loops get the observer's speed. Taken as it came, the
@@ -329,21 +329,25 @@ class MAVStateUpdater:
             if self._ledger.new("front_flow_vy", fflow.stamp_s):  # one key for this use in every mode
                 oy.correct(fflow.vy_m_s, self._flow_noise(m.front_sonar.range_m, fflow.quality))  # type: ignore[union-attr,arg-type]
         else:
-            self._angular_bottom_flow(now, m, live_rates)
+            self._angular_bottom_flow(now, m, live_rates[0])
+            self._angular_front_flow(now, m, live_rates[1])
             self.rates.correct(now, self._yaw, self.obs)
         return ox.v, oy.v
 
-    def _live_flow_rates(self, m: Measurements) -> tuple[float, float] | None:
-        """The bottom PX4Flow's angular flow if this tick brings a new reading that does not repeat
-        the one before it bit for bit (a stuck unit repeats its last reading, freshly stamped: the
-        first repetition is already the same value), else None. Every reading is compared, in
-        every mode, so a unit that stuck before an alarm mode began is known as stuck in it."""
-        bf = m.bottom_flow
-        if bf is None or bf.rate_x_rad_s is None or bf.rate_y_rad_s is None or not self._ledger.new("bottom_flow_rates", bf.stamp_s):
+    def _live_flow_rates(self, unit: str, flow: BottomFlow | FrontFlow | None) -> tuple[float, float] | None:
+        """A PX4Flow's angular flow if this tick brings a new reading of ``unit`` ("bottom", "front")
+        that does not repeat the one before it bit for bit (a stuck unit repeats its last reading,
+        freshly stamped: the first repetition is already the same value), else None. Every reading
+        is compared, in every mode, so a unit that stuck before an alarm mode began is known as
+        stuck in it."""
+        if flow is None or not self._ledger.new(f"{unit}_flow_rates", flow.stamp_s):
             return None
-        rates, last = (bf.rate_x_rad_s, bf.rate_y_rad_s), self._last_flow_rates
-        self._last_flow_rates = rates
-        return None if rates == last else rates
+        rates = (flow.rate_x_rad_s, flow.rate_y_rad_s) if isinstance(flow, BottomFlow) else (flow.rate_y_rad_s, flow.rate_z_rad_s)
+        if rates[0] is None or rates[1] is None:
+            return None
+        last = self._last_flow_rates.get(unit)
+        self._last_flow_rates[unit] = rates  # type: ignore[assignment]
+        return None if rates == last else rates  # type: ignore[return-value]
 
     def _angular_bottom_flow(self, now: float, m: Measurements, rates: tuple[float, float] | None) -> None:
         """The alarm modes' speed measurement under the vehicle: the bottom PX4Flow's angular flow
@@ -370,6 +374,32 @@ class MAVStateUpdater:
         ox, oy, _ = self.obs
         ox.correct(flow.vx_m_s, noise, learn_bias=False)
         oy.correct(flow.vy_m_s, noise, learn_bias=False)
+
+    def _angular_front_flow(self, now: float, m: Measurements, rates: tuple[float, float] | None) -> None:
+        """The alarm modes' measurement of the speeds along the front wall, as
+        :meth:`_angular_bottom_flow` below the vehicle: the front PX4Flow's angular flow times the
+        front range carried (:meth:`_front_range`, by the x speed since the last sonar sample). In
+        mode -2 nothing else measures the vertical speed, and the bias the vertical observer
+        carried in was the descent's error: a front flow of 0.2 m/s of noise at 4.8 m from its wall,
+        taken a moment before every range sensor went, left the vertical bias 0.1 m/s^2 off, and
+        the blind descent ran at 0.5 m/s instead of 0.2 into a box edge (analysis seed 323 e245).
+        Only a range the sonar measured when the alarm mode began is carried: one it last heard
+        long before (a box heard at 2.4 m in the climb, the wall 6.2 m away out of its reach since)
+        scaled the flow 2.6x short, and a fall of 1 m/s read as 0.3 (analysis seed 299 e182)."""
+        p, ff, d, last = self.p, m.front_flow, self.front.value, self.front.last_sample_t
+        if rates is None or ff is None or d is None or now - ff.stamp_s > p.flow_timeout_s or ff.quality < p.flow_min_quality:
+            return
+        began = now if self._alarm_since is None else self._alarm_since
+        if last is None or began - last > p.sonar_timeout_s:
+            return
+        d = max(d, SONAR_FLOOR_M)
+        flow = FrontFlow(ff.stamp_s, rates[0] * d, rates[1] * d, ff.quality)
+        if m.imu is not None:
+            _, flow = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, None, flow)
+        noise = self._flow_noise(d, ff.quality)
+        _, oy, oz = self.obs
+        oy.correct(flow.vy_m_s, noise, learn_bias=False)
+        oz.correct(flow.vz_m_s, noise, learn_bias=False)
 
     def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
         """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:

@@ -384,12 +384,16 @@ def test_alarm_mode_carried_speed_removes_the_accelerometer_bias_learnt_on_the_f
     assert carried((0.0, 0.0, 0.0)).vx_m_s > 0.06
 
 
-def _blind(seconds, *, accel, speed=(0.0, 0.0), angular=True, tof=False, below=2.0, seed=5, stuck=None):
+def _blind(seconds, *, accel, speed=(0.0, 0.0), angular=True, tof=False, below=2.0, seed=5, stuck=None,
+           front=None, accel_z=0.0, front_heard=True):
     """Hover 1 s in mode 0 at ``below`` m, then every range sensor lost (mode -2; with ``tof``, the
     TeraRanger stays: mode -1) for ``seconds`` while the vehicle flies at ``speed`` and the IMU reads
     a false acceleration ``accel`` (an attitude-estimate error). The bottom PX4Flow, its sonar lost,
     keeps its angular flow (0.02 rad/s of noise, 100 Hz) unless ``angular`` is False; ``stuck``: the
-    angular flow it repeats bit for bit once blind."""
+    angular flow it repeats bit for bit once blind; ``front``: the range of a front wall its PX4Flow
+    sees (angular flow only once blind), whose sonar heard it before the loss unless ``front_heard``
+    is False (then it last heard a box 2.4 m away, 5 s before); ``accel_z``: the IMU's false
+    vertical acceleration once blind."""
     rng = random.Random(seed)
     upd, est = MAVStateUpdater(), None
     for k in range(int((1.0 + seconds) / 0.01)):
@@ -405,8 +409,14 @@ def _blind(seconds, *, accel, speed=(0.0, 0.0), angular=True, tof=False, below=2
             bottom_flow=flow if (angular or not blind) else None,
             bottom_sonar=None if blind else RangeReading(t, below),
             bottom_tof=RangeReading(t, below) if (tof or not blind) else None,
-            imu=ImuReading.level(t, accel if blind else 0.0, 0.0, 0.0, 0.0),
+            imu=ImuReading.level(t, accel if blind else 0.0, 0.0, accel_z if blind else 0.0, 0.0),
         )
+        if front is not None:
+            fr = (rng.gauss(0.0, 0.02), rng.gauss(0.0, 0.02))
+            heard = front if front_heard else (2.4 if t < 0.5 else None)
+            m = dataclasses.replace(
+                m, front_flow=FrontFlow(t, 0.0, 0.0, 200, *fr, scaled=False) if blind or heard != front else FrontFlow(t, fr[0] * front, fr[1] * front, 200, *fr),
+                front_sonar=None if blind else RangeReading(t, heard))
         est = upd.update(t, m)[0]
     return est
 
@@ -426,6 +436,21 @@ def test_blind_the_bottom_flows_angular_rate_at_the_carried_height_measures_the_
     est = _blind(3.0, accel=0.0, speed=(0.3, -0.2), tof=True)
     assert est.mode == EstimationMode.ALARM_TOF
     assert (est.vx_m_s, est.vy_m_s) == pytest.approx((0.3, -0.2), abs=0.03)
+
+
+def test_blind_the_front_flows_angular_rate_at_the_carried_front_range_measures_the_vertical_speed():
+    # GIVEN every range sensor lost for 3 s, 2 m from the front wall, hovering, the IMU reading
+    # 0.1 m/s^2 of false vertical acceleration (the bias the vertical observer carried in)
+    est = _blind(3.0, accel=0.0, accel_z=0.1, front=2.0)
+    # THEN the front PX4Flow's angular flow, scaled by the front range the sonar last measured and
+    # the x speed carried since, holds the vertical speed (the alarm's +val aside) at rest
+    assert est.mode == EstimationMode.ALARM_NONE
+    climb = MAVStateUpdater().p.alarm_climb_m_s
+    assert abs(est.vz_m_s - climb) < 0.03
+    # AND without a front range measured when the loss began (the sonar last heard a box, long
+    # before) the flow is not scaled by that stale range: the IMU carries the error
+    stale = _blind(3.0, accel=0.0, accel_z=0.1, front=2.0, front_heard=False)
+    assert stale.vz_m_s - climb > 0.15
 
 
 def test_blind_a_stuck_angular_flow_is_not_taken():
