@@ -141,6 +141,9 @@ class MAVStateUpdater:
         # The last floor step the downward sensors heard (a box's edge): the odometry's travel and
         # blind time then, and how far from the vehicle's centre the edge can be (see _alarm_climb).
         self._edge: tuple[float, float, float] | None = None
+        # Where the odometry had the vehicle when the current alarm mode began, and how far it may
+        # move from there before its rotors are over floor the downward beam did not cover (_alarm_climb).
+        self._seen: tuple[float, float, float] | None = None
         self.memory = ObstacleMemory(
             keep_s=p.memory_keep_s, keep_travel_m=p.memory_keep_travel_m, max_angle_deg=p.memory_max_angle_deg,
             jump_m=p.height_jump_m, beam_half_rad=self._beam_half_angle_rad, body_radius_m=p.body_radius_m,
@@ -411,18 +414,36 @@ class MAVStateUpdater:
         as long as the obstacle memory keeps what it heard while blind (``memory_keep_s``). Blind,
         the descent cannot tell which side of the edge it is on, and beside a box it meets the top
         edge with its rotors; the wait holds the height until the sensors come back (a range
-        loss lasts seconds) or the memory's keep runs out (docs/flight.md, Limits)."""
+        loss lasts seconds) or the memory's keep runs out (docs/flight.md, Limits).
+
+        Nor, for as long, while the odometry has carried the rotors beyond the floor the downward
+        beam covered when the loss began (its footprint's radius at the height then, less
+        ``body_radius_m``): a vehicle
+        that went blind at speed brakes blind over floor no sensor has seen, and an edge there
+        (a box below the beam's reach when the loss began) met the rotors in the descent (analysis
+        seeds 281 e78, 315 e665; since session 36 the PX4Flows measure that travel)."""
         p = self.p
         if mode >= 0:
             self._alarm_since = None
         elif self._alarm_since is None:
             self._alarm_since = now
+            below = self._below_m if self._below_m is not None else 0.0
+            # How far the centre may move before the rotors reach floor the beam did not cover. Lower
+            # (below 1 m) the footprint does not cover the rotors' reach even where the loss began,
+            # and there is no margin to judge by: the paper's descent (a take-off blind at 0.5 m
+            # waited on every centimetre of drift, and its climb went on to 2.5 m).
+            margin = below * math.tan(self._beam_half_angle_rad) - self.p.body_radius_m
+            self._seen = (self.memory.x, self.memory.y, margin) if margin > 0.0 else None
         alarm_s = 0.0 if self._alarm_since is None else now - self._alarm_since
         if mode >= 0 or alarm_s < p.alarm_descent_delay_s:
             return 0.0
         if self._edge is not None and alarm_s < p.memory_keep_s:
             travel, blind, reach = self._edge
             if self.memory.travel_m - travel < reach and self.memory.blind_s - blind <= p.memory_keep_s:
+                return 0.0
+        if self._seen is not None and alarm_s < p.memory_keep_s:
+            x0, y0, radius = self._seen
+            if math.hypot(self.memory.x - x0, self.memory.y - y0) > radius:
                 return 0.0
         return p.alarm_climb_m_s
 

@@ -453,6 +453,20 @@ def test_blind_the_front_flows_angular_rate_at_the_carried_front_range_measures_
     assert stale.vz_m_s - climb > 0.15
 
 
+def test_blind_the_descent_waits_while_the_rotors_are_over_floor_the_beam_did_not_cover():
+    # GIVEN every range sensor lost 1.8 m up (the downward beam covered 1.8 x tan 15 deg = 0.48 m
+    # around the centre, 0.21 m more than the rotors' reach), for 3 s, past the descent's delay
+    climb = MAVStateUpdater().p.alarm_climb_m_s
+    # WHEN the vehicle stays where it was THEN the alarm descent's +val is filled in
+    still = _blind(3.0, accel=0.0, below=1.8)
+    assert still.vz_m_s == pytest.approx(climb, abs=0.03)
+    # WHEN it flies on blind at 0.3 m/s (0.9 m, measured by the bottom flow) THEN the descent waits:
+    # below the rotors is floor no sensor has seen
+    moved = _blind(3.0, accel=0.0, below=1.8, speed=(0.3, 0.0))
+    assert moved.mode == EstimationMode.ALARM_NONE
+    assert abs(moved.vz_m_s) < 0.03
+
+
 def test_blind_a_stuck_angular_flow_is_not_taken():
     # GIVEN every range sensor lost while hovering still, and the bottom flow stuck on its last
     # reading before the loss, 0.2 rad/s (0.4 m/s at 2 m), repeated bit for bit
