@@ -186,7 +186,7 @@ def flow_to_rad(a_m_s: float, b_m_s: float, quality: int, distance_m: float | No
     if rates_rad_s is not None and quality > 0:
         ra, rb = rates_rad_s
         return FlowRad(rb * dt_s + gx, ra * dt_s + gy, gx, gy, us, -1.0, quality)
-    return FlowRad(gx, gy, gx, gy, int(dt_s * 1e6), -1.0, 0)
+    return FlowRad(gx, gy, gx, gy, us, -1.0, 0)
 
 
 class FlowFromRad(NamedTuple):

@@ -110,6 +110,7 @@ class SimulatedAutopilot:
         self.st = AutopilotState(custom_mode=self._initial_mode())
         self.t = 0.0  # simulated time
         self._prev_meas: dict[str, Any] = {}
+        self._flow_sent: dict = {}  # per PX4Flow: its last reading's values and the frame sent for them
         self._next_hb = 0.0
         self._k = 0
         self._prev_vz = 0.0
@@ -385,9 +386,16 @@ class SimulatedAutopilot:
             d = (sonar.range_m if sonar is not None and sonar.range_m else 1.0) if f.scaled else None
             # The gyro fields carry what was subtracted (the receiver takes it out again); the
             # unit's own compensation error is already in the metric flow. Without its sonar's
-            # range the unit sends its angular flow with distance -1.
-            fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, q,
-                                rates if None not in rates else None)
+            # range the unit sends its angular flow with distance -1. A stuck unit repeats its
+            # whole frame, gyro fields included, so a repeated reading sends the same bytes.
+            key = (a, b, rates, f.quality, f.scaled, d)
+            last = self._flow_sent.get(name)
+            if last is not None and last[0] == key:
+                fr = last[1]
+            else:
+                fr = mc.flow_to_rad(a, b, f.quality, d, 1.0 / self.parts.sensors.flow.rate_hz, p, q,
+                                    rates if None not in rates else None)
+                self._flow_sent[name] = (key, fr)
             ep.send(C.MAVLink_optical_flow_rad_message(us, sid, fr.integration_time_us, fr.integrated_x, fr.integrated_y,
                                                        fr.integrated_xgyro, fr.integrated_ygyro, 0.0, 2000, fr.quality, 0, fr.distance_m))
 

@@ -408,10 +408,11 @@ class SensorSuite:
         if spurious and rng is not None and sim.incidence_rad() > math.radians(s.grazing_deg):
             if self.fault_rng.random() < spurious:
                 rng = spec.max_range_m  # the echo skidded off: the sonar reports open space
-        if name == "bottom_sonar":
-            self._px_range["bottom_flow"], self._px_true["bottom_flow"] = rng, true_m
-        elif name == "front_sonar":
-            self._px_range["front_flow"], self._px_true["front_flow"] = rng, true_m
+        if name in ("bottom_sonar", "front_sonar"):
+            if true_m is None:  # the sonar missed its echo; the unit's camera still sees along its axis
+                true_m = sim.first_echo(pos, dirs[:1])
+            unit = name.replace("sonar", "flow")
+            self._px_range[unit], self._px_true[unit] = rng, true_m
         return RangeReading(stamp, rng)
 
     def _measure_flow(self, name: str, owner: SensorName, kin, stamp: float) -> BottomFlow | FrontFlow:
@@ -424,7 +425,7 @@ class SensorSuite:
         scale_range, true_range = self._px_range[name], self._px_true[name]
         faults = self._faults
         if not true_range:
-            return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, 0.0, 0.0, 0)  # nothing in view
+            return (BottomFlow if name == "bottom_flow" else FrontFlow)(stamp, 0.0, 0.0, 0, scaled=False)  # nothing in view
         # Without its sonar's range the unit still measures the angular flow (and its quality);
         # the metric flow reads 0. Those readings draw from a generator of their own, so flights
         # where every unit has its range keep their noise sequences.

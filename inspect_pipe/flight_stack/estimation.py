@@ -7,9 +7,10 @@ sonars' range rates are its measurements), the height is a :class:`HeightEstimat
 steps from motion) and the front range a :class:`RangeObserver` carried by the x speed, all in
 ``observers.py``. Optical-flow speeds are preferred over range derivatives. The alarm modes (-1,
 -2) fill the missing vertical state with a positive speed, so that the speed controllers make the
-vehicle descend; their horizontal speed, zero in the paper, is here the observers' speed carried
-on with the IMU and corrected by the horizontal sonars' range rates where they hear a wall
-(``range_rates.SonarRangeRates.correct``).
+vehicle descend; their speeds, zero in the paper, are here the observers' speeds carried on with
+the IMU and corrected by what still measures them: the PX4Flows' angular flow at the distance
+carried (a unit without its sonar has no metric flow but still measures rad/s) and the horizontal
+sonars' range rates where they hear a wall (``range_rates.SonarRangeRates.correct``).
 """
 from __future__ import annotations
 
@@ -65,7 +66,8 @@ class Source(enum.Enum):
     TERARANGER = "TeraRanger"
     HEIGHT_RATE = "height derivative"
     INTEGRATED = "integrated (front flow's vz, else +val)"
-    RANGE_RATES = "the IMU, corrected by the bottom flow's angular rate at the height carried and the horizontal sonars' range rates"
+    RANGE_RATES = ("the IMU, corrected by the bottom flow's angular rate at the height carried (vy: and the front flow's "
+                   "at the front range carried) and the horizontal sonars' range rates")
     HEIGHT_RATE_AND_VAL = "TeraRanger derivative + val"
     CARRIED_AND_VAL = "the IMU, corrected by the front flow's angular rate at the front range carried (relaxing to 0), + val"
 
@@ -81,8 +83,10 @@ class Feeds:
 
 
 #: Table I, mode by mode: which measurement feeds which state (docs/flight.md). The paper's alarm
-#: modes (-1, -2) set vx = vy = 0; here the speed observers carry the speeds on with the IMU and the
-#: horizontal sonars' range rates correct them where they hear a wall (``range_rates.SonarRangeRates.correct``).
+#: modes (-1, -2) set vx = vy = 0; here the speed observers carry the speeds on with the IMU, and the
+#: PX4Flows' angular flow at the distance carried (``_angular_bottom_flow``, ``_angular_front_flow``) and
+#: the horizontal sonars' range rates where they hear a wall (``range_rates.SonarRangeRates.correct``)
+#: correct them.
 #: In mode 1 both PX4Flows see the lateral speed, and both readings are measurements of it (the
 #: paper takes the bottom one's): each unit's gyro bias leaves bias x range in its speed, and the
 #: front one, a metre from the inspected wall, half as much as the bottom one two metres up.
@@ -158,8 +162,9 @@ class MAVStateUpdater:
         self._had_imu = False  # an IMU reading has come (the first tick of a simulation has none)
         self._imu_silent = False  # the IMU went silent after it had spoken (see ``update``)
         self._imu_dt = 0.0  # time since the last IMU reading integrated into the speed observers
-        # The distance the bottom PX4Flow's camera sees: the height while a sensor measures it,
-        # carried on by the vertical speed in mode -2 (see _angular_bottom_flow).
+        # The distance the bottom PX4Flow's camera sees: the height estimate (measured, or in mode 3
+        # integrated from the front flow's vz), carried on by the vertical speed in mode -2
+        # (see _angular_bottom_flow).
         self._below_m: float | None = None
         self._last_flow_rates: dict[str, tuple[float, float]] = {}  # per PX4Flow, its last angular reading
 
@@ -421,7 +426,8 @@ class MAVStateUpdater:
         ``body_radius_m``): a vehicle
         that went blind at speed brakes blind over floor no sensor has seen, and an edge there
         (a box below the beam's reach when the loss began) met the rotors in the descent (analysis
-        seeds 281 e78, 315 e665; since session 36 the PX4Flows measure that travel)."""
+        seeds 281 e78; since session 36 the PX4Flows measure that travel). In both alarm modes:
+        mode -1's TeraRanger, a 3 deg laser, sees below the centre, not below the rotors."""
         p = self.p
         if mode >= 0:
             self._alarm_since = None

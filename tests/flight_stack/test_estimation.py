@@ -392,7 +392,7 @@ def _blind(seconds, *, accel, speed=(0.0, 0.0), angular=True, tof=False, below=2
     keeps its angular flow (0.02 rad/s of noise, 100 Hz) unless ``angular`` is False; ``stuck``: the
     angular flow it repeats bit for bit once blind; ``front``: the range of a front wall its PX4Flow
     sees (angular flow only once blind), whose sonar heard it before the loss unless ``front_heard``
-    is False (then it last heard a box 2.4 m away, 5 s before); ``accel_z``: the IMU's false
+    is False (then it last heard a box 2.4 m away, 0.5 s before the loss); ``accel_z``: the IMU's false
     vertical acceleration once blind."""
     rng = random.Random(seed)
     upd, est = MAVStateUpdater(), None
@@ -465,6 +465,13 @@ def test_blind_the_descent_waits_while_the_rotors_are_over_floor_the_beam_did_no
     moved = _blind(3.0, accel=0.0, below=1.8, speed=(0.3, 0.0))
     assert moved.mode == EstimationMode.ALARM_NONE
     assert abs(moved.vz_m_s) < 0.03
+    # AND below 1 m, where the footprint never covered the rotors' reach, there is no margin to judge
+    # by: the paper's descent, moving or not (a blind take-off must not wait on its drift)
+    assert _blind(3.0, accel=0.0, below=0.8, speed=(0.3, 0.0)).vz_m_s == pytest.approx(climb, abs=0.03)
+    # AND the wait lasts memory_keep_s at most: then the descent begins over unseen floor too
+    keep = MAVStateUpdater().p.memory_keep_s
+    late = _blind(keep + 1.0, accel=0.0, below=1.8, speed=(0.1, 0.0))
+    assert late.vz_m_s == pytest.approx(climb, abs=0.03)
 
 
 def test_blind_a_stuck_angular_flow_is_not_taken():
