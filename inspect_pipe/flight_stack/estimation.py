@@ -374,14 +374,7 @@ class MAVStateUpdater:
         p, bf = self.p, m.bottom_flow
         if rates is None or bf is None or self._below_m is None or now - bf.stamp_s > p.flow_timeout_s or bf.quality < p.flow_min_quality:
             return
-        d = max(self._below_m, SONAR_FLOOR_M)
-        flow = BottomFlow(bf.stamp_s, rates[0] * d, rates[1] * d, bf.quality)
-        if m.imu is not None:
-            flow, _ = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, flow, None)
-        noise = self._flow_noise(d, bf.quality)
-        ox, oy, _ = self.obs
-        ox.correct(flow.vx_m_s, noise, learn_bias=False)
-        oy.correct(flow.vy_m_s, noise, learn_bias=False)
+        self._take_angular_flow(m, bf.stamp_s, rates, self._below_m, bf.quality, bottom=True)
 
     def _angular_front_flow(self, now: float, m: Measurements, rates: tuple[float, float] | None) -> None:
         """The alarm modes' measurement of the speeds along the front wall, as
@@ -400,14 +393,29 @@ class MAVStateUpdater:
         began = now if self._alarm_since is None else self._alarm_since
         if last is None or began - last > p.sonar_timeout_s:
             return
+        self._take_angular_flow(m, ff.stamp_s, rates, d, ff.quality, bottom=False)
+
+    def _take_angular_flow(self, m: Measurements, stamp: float, rates: tuple[float, float], d: float, quality: int,
+                           *, bottom: bool) -> None:
+        """A unit's angular flow times the distance ``d`` its camera sees, turned to the heading frame
+        as a metric reading is, taken by the observers of the two axes it sees (bottom: x, y; front:
+        y, z) with a metric reading's noise at that distance; the bias is not learnt from it."""
         d = max(d, SONAR_FLOOR_M)
-        flow = FrontFlow(ff.stamp_s, rates[0] * d, rates[1] * d, ff.quality)
-        if m.imu is not None:
-            _, flow = self._flow_to_heading(m.imu.roll_rad, m.imu.pitch_rad, None, flow)
-        noise = self._flow_noise(d, ff.quality)
-        _, oy, oz = self.obs
-        oy.correct(flow.vy_m_s, noise, learn_bias=False)
-        oz.correct(flow.vz_m_s, noise, learn_bias=False)
+        a, b = rates[0] * d, rates[1] * d
+        imu = m.imu
+        if bottom:
+            bf = BottomFlow(stamp, a, b, quality)
+            if imu is not None:
+                bf, _ = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, bf, None)
+            (o1, z1), (o2, z2) = (self.obs[0], bf.vx_m_s), (self.obs[1], bf.vy_m_s)
+        else:
+            ff = FrontFlow(stamp, a, b, quality)
+            if imu is not None:
+                _, ff = self._flow_to_heading(imu.roll_rad, imu.pitch_rad, None, ff)
+            (o1, z1), (o2, z2) = (self.obs[1], ff.vy_m_s), (self.obs[2], ff.vz_m_s)
+        noise = self._flow_noise(d, quality)
+        o1.correct(z1, noise, learn_bias=False)
+        o2.correct(z2, noise, learn_bias=False)
 
     def _alarm_climb(self, now: float, mode: EstimationMode) -> float:
         """"+val." (Table I), filled in once the alarm mode has lasted ``alarm_descent_delay_s``:
