@@ -431,11 +431,11 @@ class MAVStateUpdater:
 
         Nor, for as long, while the odometry has carried the rotors beyond the floor the downward
         beam covered when the loss began (its footprint's radius at the height then, less
-        ``body_radius_m``): a vehicle
-        that went blind at speed brakes blind over floor no sensor has seen, and an edge there
-        (a box below the beam's reach when the loss began) met the rotors in the descent (analysis
-        seeds 281 e78; since session 36 the PX4Flows measure that travel). In both alarm modes:
-        mode -1's TeraRanger, a 3 deg laser, sees below the centre, not below the rotors."""
+        ``body_radius_m``): a vehicle that went blind at speed brakes blind over floor no sensor
+        has seen, and an edge there (a box below the beam's reach when the loss began) met the
+        rotors in the descent (analysis seed 281 e78; since session 36 the PX4Flows measure that
+        travel). In both alarm modes: mode -1's TeraRanger, a 3 deg laser, sees below the centre,
+        not below the rotors."""
         p = self.p
         if mode >= 0:
             self._alarm_since = None
