@@ -274,10 +274,16 @@ class HeightEstimator:
 
 class RangeSlope:
     """Rate of change of one range sensor from its last samples (least-squares line over
-    ``window_s``); None with fewer than ``min_samples`` consecutive valid samples."""
+    ``window_s``); None with fewer than ``min_samples`` consecutive valid samples. ``full``: the
+    samples span the window (at least ``full_span_s``: 0.4 s of the 10 Hz sonars), the slope whose
+    noise ``speed_noise_m_s`` states (three consecutive samples, 0.2 s apart, give a slope 2.2
+    times as noisy; three across the window, every other reading beyond the usable range, 1.1
+    times), and no echo was missed (:meth:`miss`) among them."""
 
-    def __init__(self, *, window_s: float = 0.45, max_gap_s: float = 0.3, min_samples: int = 3) -> None:
+    def __init__(self, *, window_s: float = 0.45, max_gap_s: float = 0.3, min_samples: int = 3, full_span_s: float = 0.35) -> None:
         self.window_s, self.max_gap_s, self.min_samples = window_s, max_gap_s, min_samples
+        self.full_span_s = full_span_s
+        self._missed_t: float | None = None  # the last reading that heard no echo (see miss)
         self.samples: list[tuple[float, float]] = []
         self._fit: float | None = None  # the line's slope over the current samples (cached)
         self._fit_valid = False
@@ -294,6 +300,20 @@ class RangeSlope:
         self.samples.append((t, range_m))
         while self.samples and t - self.samples[0][0] > self.window_s:
             self.samples.pop(0)
+
+    def miss(self, t: float) -> None:
+        """A reading at ``t`` heard no echo: the samples around it need not be one surface's (a sonar
+        at a shallow incidence hears its surface through whichever rays catch an echo)."""
+        self._missed_t = t
+
+    @property
+    def full(self) -> bool:
+        s = self.samples
+        return (
+            len(s) >= self.min_samples
+            and s[-1][0] - s[0][0] >= self.full_span_s
+            and (self._missed_t is None or self._missed_t < s[0][0])
+        )
 
     def rate(self, now: float) -> float | None:
         s = self.samples

@@ -13,6 +13,7 @@ from inspect_pipe.flight_stack.messages import (
     AttitudeSetpoint,
     Button,
     Clearance,
+    EstimationMode,
     Measurements,
     OperatorInput,
     SpeedCommand,
@@ -55,10 +56,30 @@ class OnboardStack:
         self._pre_alarm_height_m: float | None = None  # height held when an alarm mode began
         self._was_alarm = False
         self._impact = ImpactDetector(p.flight_machine.impact_accel_m_s2, p.flight_machine.impact_noise_sigma)
+        # The vertical disturbance observer's value while a height was last measured (see tick).
+        self._lift_ref: float | None = None
 
     @property
     def fsm(self) -> FlightState:
         return self.machine.state
+
+    def _floor_holds(self, est: StateEstimate, airborne: bool) -> bool:
+        """The floor met too softly for a jolt: where no height is measured (mode -2, mode 3), the
+        vertical disturbance observer's excess lift has grown by ``impact_accel_m_s2`` since a
+        height was last measured. Held by the floor, the vehicle does not follow the descent the
+        speed loop asks, the observer takes the floor's push for a lighter vehicle and lowers the
+        thrust further, and its value runs to its limit (-6 m/s^2 within 3 s; in the air it stays
+        within 0.3 m/s^2 of its level through an alarm descent). An alarm descent slowed to 0.08
+        m/s by the ground effect touched the floor with a jolt under the 3 m/s^2 and sat there
+        "flying" (alarm_stuck_teraranger; docs/flight.md, Session 37). The flight machine judges
+        it as a jolt: only where no height is measured, and not sooner than a fall from the last
+        measured height could reach the floor."""
+        value = self.controller.obs_z.value
+        measured = est.mode == EstimationMode.ALARM_TOF or (est.mode >= 0 and est.mode != EstimationMode.FRONT)
+        if measured or not airborne or self._lift_ref is None:
+            self._lift_ref = value
+            return False
+        return self._lift_ref - value > self.params.flight_machine.impact_accel_m_s2
 
     def tick(self, now_s: float, measurements: Measurements, operator: OperatorInput, battery_percent: float) -> TickOutput:
         p = self.params
@@ -77,6 +98,10 @@ class OnboardStack:
         buttons = operator.buttons if operator.link_ok else frozenset()
         fm = p.flight_machine
         before = machine.state
+        jolt = measurements.imu is not None and self._impact.update(
+            self.controller.unexplained_lift_m_s2(measurements.imu.az_m_s2), airborne
+        )
+        held = self._floor_holds(est, airborne)
         state = machine.update(
             now_s,
             dt,
@@ -85,8 +110,7 @@ class OnboardStack:
                 takeoff_pressed=Button.TAKEOFF in buttons,
                 land_requested=Button.LAND in buttons or beh.land_request,
                 high_thrust=self._last_thrust >= p.control.hover_thrust_frac,
-                impact=measurements.imu is not None
-                and self._impact.update(self.controller.unexplained_lift_m_s2(measurements.imu.az_m_s2), airborne),
+                impact=jolt or held,
             ),
         )
         ctrl = self.controller

@@ -42,7 +42,9 @@ class SonarRangeRates:
         for name, r in (("front", m.front_sonar), ("left", m.left_sonar), ("right", m.right_sonar)):
             slope = self.slopes[name]
             if r is not None and self.ledger.new(f"{name}_samples", r.stamp_s):
-                if r.range_m is not None and r.range_m <= p.sonar_max_range_m:
+                if r.range_m is None:
+                    slope.miss(r.stamp_s)
+                elif r.range_m <= p.sonar_max_range_m:
                     slope.add(r.stamp_s, r.range_m)
             fresh = r is not None and now - r.stamp_s <= p.sonar_timeout_s
             self.rates[name] = slope.rate(now) if fresh else None
@@ -76,7 +78,12 @@ class SonarRangeRates:
         sensor went silent took the lagging rate for its speed and coasted at 0.14 m/s for 2.5 s).
         A new surface entering the beam fails the observer's gate; the left and right sonars
         disagreeing by more than the gate's width (one of them hears a box sliding into its beam)
-        say nothing. Not used while turning."""
+        say nothing. Not used while turning. Only a slope whose samples span the window with no
+        echo missed among them counts (``RangeSlope.full``, the slope whose noise ``speed_noise_m_s``
+        states): the samples a sonar gave between missed echoes at a shallow incidence came
+        from whichever rays heard the surface and read 0.63 m/s against the vehicle's 0.07, and
+        taken with a full window's noise they steered a link-loss hold 0.37 m off its point
+        (fresh seed 335 e806; docs/flight.md, Session 37)."""
         p = self.p
         if self.turning(now, yaw):
             return
@@ -86,8 +93,9 @@ class SonarRangeRates:
                 continue
             ob, found = obs[axis], []
             for name, sign in sensors:
-                rate, t_mid = self.rates[name], self.slopes[name].t_mid
-                if rate is None or t_mid is None or not self.ledger.new(f"{name}_slope", t_mid):
+                slope = self.slopes[name]
+                rate, t_mid = self.rates[name], slope.t_mid
+                if rate is None or t_mid is None or not slope.full or not self.ledger.new(f"{name}_slope", t_mid):
                     continue
                 then = self._speed_at(t_mid - SONAR_LATENCY_S)
                 found.append((sign * rate, None if then is None else then[axis]))

@@ -324,3 +324,27 @@ def test_xy_integrators_follow_the_command_model_not_the_step_and_relax_while_bl
     expected = 0.2 * (1.0 - p.speed_ki_1_s2 / p.speed_kp_1_s * 0.02) ** 50
     assert c.pid_vx.integral == pytest.approx(expected, rel=1e-9)
     assert c.pid_vx.integral < 0.1
+
+
+def test_a_floor_met_too_softly_for_a_jolt_is_found_by_its_lasting_push():
+    from inspect_pipe.flight_stack.onboard import OnboardStack
+
+    def est(mode):
+        return StateEstimate(height_m=1.0, altitude_m=1.0, vx_m_s=0.0, vy_m_s=0.0, vz_m_s=-0.2, mode=mode)
+
+    stack = OnboardStack()
+    obs = stack.controller.obs_z
+    # GIVEN a flight whose height is measured (mode 0), the vertical disturbance observer at its level
+    obs.value = -0.2
+    assert not stack._floor_holds(est(EstimationMode.BOTTOM), airborne=True)
+    # WHEN every range sensor is lost (mode -2) and the observer's excess lift grows (held by the
+    # floor, the vehicle does not follow the descent asked, and the observer lowers the thrust)
+    # THEN the floor holds the vehicle once it has grown by impact_accel_m_s2 (3 m/s^2), not before
+    for value, held in ((-0.5, False), (-3.1, False), (-3.3, True)):
+        obs.value = value
+        assert stack._floor_holds(est(EstimationMode.ALARM_NONE), airborne=True) is held
+    # AND where a height is measured (mode -1's TeraRanger) the level follows the observer: the
+    # height decides there
+    assert not stack._floor_holds(est(EstimationMode.ALARM_TOF), airborne=True)
+    obs.value = -3.5
+    assert not stack._floor_holds(est(EstimationMode.ALARM_NONE), airborne=True)

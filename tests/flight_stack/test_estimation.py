@@ -320,6 +320,34 @@ def test_alarm_mode_range_rates_are_not_used_while_turning_or_across_a_new_surfa
     assert abs(step.vy_m_s) < 0.05
 
 
+def test_alarm_mode_takes_a_range_rate_only_over_a_full_window_of_echoes():
+    # GIVEN mode -1 hovering still (the IMU feels nothing) between side walls, with the front
+    # sonar on a surface at a shallow incidence: 4.0 m, then 1.5 s of missed echoes, then three
+    # echoes from whichever rays heard it (4.214, 4.168, 4.089 m: a 0.63 m/s slope), two misses
+    # and one more echo (4.008 m: 0.4 m/s over the window's 0.4 s; fresh seed 335 e806)
+    heard = {3.6: 4.214, 3.7: 4.168, 3.8: 4.089, 4.1: 4.008}
+
+    def front(t):
+        if t < 2.0:
+            return 4.0
+        if t >= 4.5:  # echoes again, the vehicle now closing on its wall at 0.1 m/s
+            return 4.0 - 0.1 * (t - 4.5)
+        return heard.get(round(t, 1))
+
+    upd, vx = MAVStateUpdater(), []
+    for k in range(int(5.5 / 0.02)):
+        t = 1.0 + 0.02 * k
+        est = upd.update(t, _alarm_meas(t, left=lambda s: 2.6, right=lambda s: 3.9, front=front))[0]
+        vx.append((t, est.vx_m_s))
+    assert est.mode == EstimationMode.ALARM_TOF
+    # THEN neither the three samples 0.2 s apart nor the slope across the missed echoes moves
+    # anything (taken with a full window's noise they carried the speed to 0.42 m/s, and the hold
+    # flew off its point)
+    assert max(abs(v) for t, v in vx if t < 4.5) < 0.03
+    # AND echoes spanning the window again (0.4 s) measure the speed
+    assert vx[-1][1] == pytest.approx(0.1, abs=0.02)
+
+
 def test_a_stuck_flow_stays_dropped_while_it_repeats_and_the_estimate_restarts_from_the_imu():
     def meas(t, ax):
         m = _meas(t, front_range=4.0)
