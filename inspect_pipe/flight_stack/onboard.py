@@ -56,7 +56,7 @@ class OnboardStack:
         self._pre_alarm_height_m: float | None = None  # height held when an alarm mode began
         self._was_alarm = False
         self._impact = ImpactDetector(p.flight_machine.impact_accel_m_s2, p.flight_machine.impact_noise_sigma)
-        # The vertical disturbance observer's value while a height was last measured (see tick).
+        # The vertical disturbance observer's value while a height was last measured (_floor_holds).
         self._lift_ref: float | None = None
 
     @property
