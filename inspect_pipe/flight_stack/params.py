@@ -264,7 +264,11 @@ class FlightMachineParams:
     descend_speed_m_s: float = param(0.4, 0.1, 1.5, "m/s", "descending (land requested) until flying_height_m")
     touchdown_confirm_s: float = param(0.2, 0.0, 2.0, "s", "landing: ground-like height and speed this long = touchdown")
     landing_speed_m_s: float = param(0.25, 0.05, 1.0, "m/s", "final landing speed (below the 1 m/s a floor contact counts as a crash)")
-    impact_accel_m_s2: float = param(3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown")
+    impact_accel_m_s2: float = param(
+        3.0, 0.5, 30.0, "m/s^2", "IMU upward jolt that means touchdown; where no height is measured, also the floor's "
+        "lasting push: the vertical disturbance observer's value fallen this far below its level when a height was "
+        "last measured (a touchdown too soft for a jolt, OnboardStack._floor_holds)"
+    )
     impact_noise_sigma: float = param(
         5.0, 0.0, 20.0, "sigma", "... and beyond this many RMS of the IMU's recent unexplained lift in flight (vibration)"
     )
