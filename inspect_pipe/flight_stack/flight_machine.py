@@ -27,7 +27,9 @@ class FlightEvents:
     takeoff_pressed: bool = False
     land_requested: bool = False  # land button or low_battery_land
     high_thrust: bool = False  # collective thrust at or above hover
-    impact: bool = False  # IMU jolt upwards with thrust at most hover, or the floor's lasting push (OnboardStack._floor_holds): the floor stopped us
+    # IMU jolt upwards with thrust at most hover, or the floor's lasting push where no height is
+    # measured (OnboardStack._floor_holds): the floor stopped us
+    impact: bool = False
 
 
 class ImpactDetector:
