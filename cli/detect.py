@@ -76,6 +76,14 @@ def _kinds(kind: Kind) -> tuple[str, ...]:
     return KINDS if kind is Kind.all else (kind.value,)
 
 
+#: What detect writes beside each image (NAME.prob.png ...): never an input of a later run in the same folder.
+OUTPUT_SUFFIXES = (".prob.png", ".mask.png", ".severity.png")
+
+
+def _is_input(p: Path) -> bool:
+    return p.is_file() and p.suffix.lower() in IMAGE_EXTS and not p.name.lower().endswith(OUTPUT_SUFFIXES)
+
+
 def list_inputs(inp: Path) -> list[Path]:
     """Images to process: INPUT itself, the mosaic of a mosaic output folder, or a folder's images."""
     if not inp.exists():
@@ -84,12 +92,9 @@ def list_inputs(inp: Path) -> list[Path]:
         return [inp]
     if (inp / "mosaic.json").exists() and (inp / "mosaic.png").exists():
         return [inp / "mosaic.png"]
-    files = sorted(p for p in inp.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS)
+    files = sorted(p for p in inp.iterdir() if _is_input(p))
     if not files:  # a sweep may keep its frames one level down
-        files = sorted(
-            p for d in sorted(inp.iterdir()) if d.is_dir()
-            for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS
-        )
+        files = sorted(p for d in sorted(inp.iterdir()) if d.is_dir() for p in d.iterdir() if _is_input(p))
     if not files:
         raise InputError(inp, "no images in folder", f"expected {', '.join(IMAGE_EXTS)} files")
     return files
@@ -100,7 +105,10 @@ def read_image(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
     why = truncation(path)
     if why:
         raise InputError(path, why, "copy the image again" if why.startswith("truncated") else "give an image file")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as err:  # e.g. a header claiming more pixels than OpenCV decodes (2**30)
+        raise InputError(path, f"unreadable image ({_cv_reason(err)})", "give an image of at most 1 gigapixel") from None
     if img is None or img.size == 0:
         raise InputError(path, "unreadable or empty image")
     if img.dtype != np.uint8:
@@ -114,6 +122,17 @@ def read_image(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
     elif img.ndim == 3 and img.shape[2] != 3:
         raise InputError(path, f"{img.shape[2]}-channel image is not supported")
     return img, valid
+
+
+def _cv_reason(err: Exception) -> str:
+    """OpenCV's own reason, one short phrase, from its multi-line error text."""
+    text = str(err)
+    if "CV_IO_MAX_IMAGE_PIXELS" in text:
+        return "its header claims more pixels than OpenCV decodes, 2**30"
+    for line in text.splitlines():
+        if "error:" in line:
+            return line.split("error:", 1)[1].strip()[:120]
+    return (text.strip().splitlines() or [type(err).__name__])[-1][:120]
 
 
 def _write_png(path: Path, img: np.ndarray) -> None:
@@ -151,6 +170,12 @@ class _Outputs:
         self.regions: list[dict] = []
         self.errors: list[dict] = []
         self._used: set[str] = set()
+        self._written: list[Path] = []  # this run's files: removed again if defects.json cannot be written
+
+    def _png(self, name: str, img: np.ndarray, done: list[Path]) -> None:
+        path = self.out / name
+        _write_png(path, img)
+        done.append(path)
 
     def name_for(self, path: Path) -> str:
         return _name_for(path, self._used)
@@ -161,18 +186,30 @@ class _Outputs:
             typer.echo(f"error: {err}", err=True)
 
     def add(self, path: Path, name: str, img: np.ndarray, valid: Optional[np.ndarray], det) -> None:
+        """Write one image's maps; a write that fails removes that image's other maps and raises
+        InputError (the caller records the image as failed and goes on)."""
+        done: list[Path] = []
+        try:
+            self._add(path, name, img, valid, det, done)
+        except InputError:
+            for p in done:
+                p.unlink(missing_ok=True)
+            raise
+        self._written += done
+
+    def _add(self, path: Path, name: str, img: np.ndarray, valid: Optional[np.ndarray], det, done: list[Path]) -> None:
         prob, mask = det.prob, det.mask
         if valid is not None:  # transparent pixels of a mosaic are not wall
             prob = np.where(valid, prob, 0).astype(np.uint8)
             mask = mask & valid
-        _write_png(self.out / f"{name}.prob.png", prob)
-        _write_png(self.out / f"{name}.mask.png", mask.astype(np.uint8) * 255)
+        self._png(f"{name}.prob.png", prob, done)
+        self._png(f"{name}.mask.png", mask.astype(np.uint8) * 255, done)
         rec = {}
         sev = getattr(det, "severity", None)
         if sev is not None:  # 0 none, 1 fair, 2 poor, 3 severe (decided corrosion pixels only)
             if valid is not None:
                 sev = np.where(valid, sev, 0).astype(np.uint8)
-            _write_png(self.out / f"{name}.severity.png", sev)
+            self._png(f"{name}.severity.png", sev, done)
             n = np.bincount(sev.ravel(), minlength=4)[1:4]
             rec = {"severity": f"{name}.severity.png",
                    "severity_fractions": {k: round(float(v) / sev.size, 6) for k, v in zip(SEVERITY_STATES, n)}}
@@ -196,7 +233,13 @@ class _Outputs:
                "images": self.images, "regions": self.regions, "errors": self.errors}
         from inspect_pipe._files import write_json
 
-        write_json(self.out / "defects.json", doc)
+        try:
+            write_json(self.out / "defects.json", doc)
+        except OSError as err:  # the maps without their register are of no use: none is left behind
+            for p in self._written:
+                p.unlink(missing_ok=True)
+            raise InputError(self.out / "defects.json", f"cannot write it ({err.strerror or err})",
+                             "give a writable output folder; nothing written") from None
         if self.errors:
             raise InputError(self.out, f"{len(self.errors)} of {len(self.errors) + len(self.images)} images failed "
                              "(listed above and in defects.json)", f"{len(self.images)} other images written")
@@ -231,7 +274,10 @@ def _detect_each(files: list[Path], outs: _Outputs, eng, kinds: tuple[str, ...],
                 outs.fail(path, InputError(path, str(err)))
             continue
         for (path, name, img, valid), det in zip(ready, dets):
-            outs.add(path, name, img, valid, det)
+            try:
+                outs.add(path, name, img, valid, det)
+            except InputError as err:  # that image's maps could not be written: it failed, the others go on
+                outs.fail(path, err)
 
 
 @app.command("run")
@@ -267,6 +313,8 @@ def run(
     kinds = _kinds(kind)
     eng.check_kinds(kinds)
     files = list_inputs(input)  # bad input fails before anything is created
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "exists and is not a folder", "give a new or an existing output folder")
     outs = _Outputs(out, len(files))
     bar = StageProgress()  # rich bars on a terminal; none under -q
     try:
@@ -299,6 +347,12 @@ def train(
 
     if out.is_dir():  # checked before an hour of training, not after it
         raise InputError(str(out), "is a directory", "give the model file to write, e.g. -o models/defects.onnx")
+    want = ".onnx" if engine is Engine.onnx else ".npz"
+    if engine is not Engine.fused and out.suffix.lower() != want:  # checked before an hour of training, not after it
+        raise InputError(str(out), f"--engine {engine.value} writes a {want} file", f"give -o NAME{want}")
+    parent = next((p for p in out.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise InputError(str(out), f"{parent} is a file, not a folder", "give a path in a folder")
     if engine is Engine.onnx:
         return _train_onnx(data, out, version or "5", time_budget_min, max_steps)
     version = version or "1"

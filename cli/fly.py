@@ -70,7 +70,7 @@ def fly(
         tlog_writer = TlogWriter(tlog, sc)
     callbacks = [cb for cb in (recorder, tlog_writer) if cb is not None]
     try:
-        writer = FlightLogWriter(log, sc, tick_hz=StackParams().control.tick_hz)
+        writer = FlightLogWriter(log, sc, tick_hz=(stack_params or StackParams()).control.tick_hz)
         with writer:
             if not callbacks:
                 result = run_scenario(sc, on_tick=writer, params=stack_params)

@@ -32,6 +32,12 @@ GOALS = {
 }
 
 
+#: Largest campaign one command runs (a million episodes x 3 shields is a week of one core).
+MAX_EPISODES = 1_000_000
+#: Most worker processes (each one flies whole episodes on one core).
+MAX_WORKERS = 256
+
+
 @dataclass(frozen=True)
 class CampaignConfig:
     episodes: int
@@ -42,12 +48,12 @@ class CampaignConfig:
     report: bool = True
 
     def check(self) -> "CampaignConfig":
-        if self.episodes < 1:
-            raise InputError("--episodes", f"is {self.episodes}", "at least 1")
+        if not 1 <= self.episodes <= MAX_EPISODES:
+            raise InputError("--episodes", f"is {self.episodes}", f"1 to {MAX_EPISODES:,}; each takes about 3 s of CPU")
         if self.seed < 0:
             raise InputError("--seed", f"is {self.seed}", "an integer >= 0")
-        if self.workers < 1:
-            raise InputError("--workers", f"is {self.workers}", "at least 1")
+        if not 1 <= self.workers <= MAX_WORKERS:
+            raise InputError("--workers", f"is {self.workers}", f"1 to {MAX_WORKERS}, one per core; this machine has {os.cpu_count()}")
         for s in self.shields:
             if s not in SHIELDS:
                 raise InputError("--shields", f"unknown shield {s!r}", "one of " + ", ".join(SHIELDS))
@@ -107,7 +113,7 @@ def run_campaign(cfg: CampaignConfig, progress: Callable[[int, int], None] | Non
                 progress(k + 1, len(jobs))
     else:
         ctx = mp.get_context("fork" if hasattr(os, "fork") else "spawn")
-        with ctx.Pool(cfg.workers) as pool:
+        with ctx.Pool(min(cfg.workers, cfg.episodes)) as pool:
             for k, (i, rs) in enumerate(pool.imap_unordered(_work, jobs, chunksize=2)):
                 results[i] = rs
                 if progress:

@@ -478,15 +478,10 @@ def _load_opencv(path: Path) -> CameraModel:
 
 
 def _load_ros(path: Path, text: str) -> CameraModel:
-    import yaml
+    from inspect_pipe._yaml import load_yaml
 
     where = str(path)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        at = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputError(where, f"not valid YAML{at}", "an OpenCV calibration file (%YAML:1.0) or a ROS camera_info YAML") from None
+    doc = load_yaml(text, where, "an OpenCV calibration file (%YAML:1.0) or a ROS camera_info YAML")
     if not isinstance(doc, dict) or "camera_matrix" not in doc:
         raise InputError(where, "not a camera calibration", "an OpenCV calibration file (%YAML:1.0) or a ROS camera_info YAML with camera_matrix")
 

@@ -80,6 +80,9 @@ class MavlinkEndpoint:
             if scheme in ("udp", "udpin", "udpout"):
                 host, _, port = rest.rpartition(":")
                 addr = (host or "127.0.0.1", int(port))
+                lowest = 1 if scheme == "udpout" else 0  # listening on port 0: the system picks a free one
+                if not lowest <= addr[1] <= 65535:
+                    raise ValueError(f"port {addr[1]} is not in {lowest}..65535")
                 self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
                 if scheme == "udpout":
                     self.peer = addr
@@ -91,9 +94,15 @@ class MavlinkEndpoint:
             else:
                 from pymavlink import mavutil
 
-                self._conn = mavutil.mavlink_connection(url, source_system=system_id, source_component=component_id)
+                try:
+                    self._conn = mavutil.mavlink_connection(url, source_system=system_id, source_component=component_id)
+                except ModuleNotFoundError as err:
+                    if err.name != "serial":
+                        raise
+                    raise InputError(url, "a serial link needs pyserial, which is not installed",
+                                     "pip install 'inspect-pipe[serial]', or give udp:HOST:PORT / tcp:HOST:PORT") from None
                 self.listening = False
-        except (ValueError, OSError) as err:
+        except (ValueError, OSError, OverflowError) as err:
             raise InputError(url, f"cannot open the MAVLink connection ({err})",
                              "use udp:HOST:PORT to listen, udpout:HOST:PORT to send, tcp:HOST:PORT or a serial device") from None
 

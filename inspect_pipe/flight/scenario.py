@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import enum
 import math
+import reprlib
 import types
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-import yaml
+import cv2
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 from pydantic.fields import FieldInfo
 
 from inspect_pipe._images import truncation
+from inspect_pipe._yaml import load_yaml
 from inspect_pipe.errors import InputError
 from inspect_pipe.flight_stack.messages import Button, SpeedCommand
 
@@ -254,11 +256,28 @@ class VehicleDoc(_Doc):
     thrust_scale: float = _num(0.5, 1.5, default=1.0, doc="true maximum thrust / nominal")
 
 
+#: Widest field of view, corner to corner, the simulated camera renders (``CameraDoc``).
+MAX_DIAGONAL_FOV_DEG = 140.0
+
+
 class CameraDoc(_Doc):
     fps: float = _num(gt=0.0, hi=200.0, default=10.0)
-    width: int = Field(752, strict=True, ge=16)
-    height: int = Field(480, strict=True, ge=16)
-    hfov_deg: float = _num(5.0, 170.0, default=60.0)
+    # The simulated camera renders up to 8192 px a side (OpenCV's remap needs under 32767; a frame
+    # that size is 200 MB) and at most MAX_DIAGONAL_FOV_DEG corner to corner: the renderer inverts
+    # its lens model (a pinhole with mild barrel distortion) by fixed-point iteration, which does
+    # not converge for rays much further out (it did at 140 deg, not at 148).
+    width: int = Field(752, strict=True, ge=16, le=8192)
+    height: int = Field(480, strict=True, ge=16, le=8192)
+    hfov_deg: float = _num(5.0, 150.0, default=60.0)
+
+    @model_validator(mode="after")
+    def _diagonal(self) -> CameraDoc:
+        diag = 2.0 * math.degrees(math.atan(math.tan(math.radians(self.hfov_deg) / 2.0) * math.hypot(self.width, self.height) / self.width))
+        if diag > MAX_DIAGONAL_FOV_DEG:
+            raise ValueError(
+                f"hfov_deg {self.hfov_deg:g} on a {self.width} x {self.height} frame sees {diag:.0f} deg corner to corner "
+                f"(expected at most {MAX_DIAGONAL_FOV_DEG:.0f}: a smaller hfov_deg or a frame less tall)")
+        return self
 
 
 class StickDoc(_Doc):
@@ -319,7 +338,7 @@ class ScenarioDoc(_Doc):
     """A simulated flight: the hold, the vehicle, the surveyor's stick and buttons, the faults."""
 
     format: Literal["inspect_pipe.scenario/1"]
-    name: str = Field(min_length=1)
+    name: str = Field(min_length=1, max_length=200, pattern=r"^[^\x00-\x1f\x7f]+$")  # printed: no control characters
     duration_s: float = _num(hi=24 * 3600.0, gt=0.0)
     seed: int = Field(0, strict=True, ge=0)
     world: WorldDoc
@@ -335,10 +354,14 @@ class ScenarioDoc(_Doc):
 def _schema_error(err: ValidationError) -> tuple[str, str, str]:
     """The first problem as (field, problem, expected), the expectation read from the schema."""
     e = err.errors(include_url=False)[0]
-    raw = [p for p in e["loc"] if isinstance(p, int) or not _is_branch(p)]
+    kind, value = e["type"], e.get("input")
+    loc = list(e["loc"])
+    # pydantic's location names the union branches it tried ("float", "function-after[...]"); an
+    # unknown key is the file's own text, whatever it reads, and is kept
+    last = loc[-1:] if kind == "extra_forbidden" else []
+    raw = [p for p in (loc[:-1] if last else loc) if isinstance(p, int) or not _is_branch(p)] + last
     on_key = "[key]" in e["loc"]
     field = _field_name(raw)
-    kind, value = e["type"], e.get("input")
     if kind == "value_error":
         return field, str(e["msg"]).removeprefix("Value error, "), ""
     if kind == "missing" and raw and isinstance(raw[-1], int):  # a fixed-length list one short
@@ -352,6 +375,8 @@ def _schema_error(err: ValidationError) -> tuple[str, str, str]:
         return field, "unknown field", "one of " + ", ".join(names) if names else ""
     if kind == "missing":
         return field, "missing", "it to be present"
+    if kind == "string_pattern_mismatch":  # the only pattern: a name without control characters
+        return field, f"is {_short(value)}", "printable text without control characters"
     tp, info = _schema_at(raw)
     if on_key:
         tp, info = get_args(_schema_at(raw[:-1])[0])[0], None
@@ -446,7 +471,7 @@ def _expected(tp: Any, info: FieldInfo | None) -> str:
 
 
 def _short(v: Any, n: int = 40) -> str:
-    s = repr(v)
+    s = reprlib.repr(v)  # bounded: a value from the file may be a list of millions
     return s if len(s) <= n else s[: n - 3] + "..."
 
 
@@ -456,19 +481,16 @@ def _short(v: Any, n: int = 40) -> str:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists() or path.is_dir():  # a pipe (``<(...)``, /dev/stdin) is read as a file
         raise InputError(str(path), "scenario file not found" if not path.exists() else "is a directory, not a scenario file",
                          "give the path of a .yaml scenario")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise InputError(str(path), "not UTF-8 text", "a YAML or JSON scenario") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputError(str(path), f"not valid YAML{where}", "a YAML or JSON scenario") from None
+    except OSError as err:
+        raise InputError(str(path), f"cannot read it ({err.strerror or type(err).__name__})", "a readable YAML or JSON scenario") from None
+    doc = load_yaml(text, str(path), "a YAML or JSON scenario")
     return parse_scenario(doc, source=str(path), base=path.parent)
 
 
@@ -476,7 +498,8 @@ def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".
     """A scenario from a parsed document: the schema (``ScenarioDoc``) first, then the checks
     that relate fields (boxes and start inside the hold, events inside the flight, files found)."""
     if not isinstance(doc, dict):
-        raise InputError(source, f"is {type(doc).__name__}", "expected a mapping with " + ", ".join(ScenarioDoc.model_fields))
+        raise InputError(source, "is empty" if doc is None else f"is {type(doc).__name__}",
+                         "expected a mapping with " + ", ".join(ScenarioDoc.model_fields))
     try:
         d = ScenarioDoc.model_validate(doc)
     except ValidationError as err:
@@ -498,7 +521,8 @@ class _Checks:
         if not p.is_file():
             raise self.fail(field, f"file {name} not found" if not p.exists() else f"{name} is not a file",
                             "an existing image file, relative to the scenario file")
-        why = truncation(p)  # before the flight, not after it (the camera reads the texture at the end)
+        # before the flight, not after it (the camera reads the texture at the end)
+        why = truncation(p) or ("" if cv2.haveImageReader(str(p)) else "not an image OpenCV reads")
         if why:
             raise self.fail(field, f"{name}: {why}", "a whole PNG or JPEG image")
         return p
@@ -578,6 +602,11 @@ def _check_start(r: _Checks, world: World, pos: tuple[float, ...]) -> None:
         )
     if not 0.0 <= z <= hold.height_m:
         raise r.fail(f, f"z={z} is outside the hold", f"z in [0, {hold.height_m}] (the vehicle starts landed)")
+    # Landed: on the tank top, or on a box whose top is under it.
+    tops = [b.max_m[2] for b in world.boxes if b.min_m[0] <= x <= b.max_m[0] and b.min_m[1] <= y <= b.max_m[1]]
+    if abs(z) > 0.01 and not any(abs(z - top) <= 0.01 for top in tops):
+        raise r.fail(f, f"z={z:g} is in mid-air (the vehicle starts landed)",
+                     "z 0 (the tank top)" + "".join(f" or {top:g} (the top of the box under it)" for top in tops))
     for i, b in enumerate(world.boxes):
         near = all(b.min_m[k] - rad < pos[k] < b.max_m[k] + rad for k in range(2))
         if near and z < b.max_m[2]:

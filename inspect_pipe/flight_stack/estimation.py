@@ -383,10 +383,10 @@ class MAVStateUpdater:
         mode -2 nothing else measures the vertical speed, and the bias the vertical observer
         carried in was the descent's error: a front flow of 0.2 m/s of noise at 4.8 m from its wall,
         taken a moment before every range sensor went, left the vertical bias 0.1 m/s^2 off, and
-        the blind descent ran at 0.5 m/s instead of 0.2 into a box edge (analysis seed 323 e245).
+        the blind descent ran at 0.5 m/s instead of 0.2 into a box edge (docs/flight.md).
         Only a range the sonar measured when the alarm mode began is carried: one it last heard
         long before (a box heard at 2.4 m in the climb, the wall 6.2 m away out of its reach since)
-        scaled the flow 2.6x short, and a fall of 1 m/s read as 0.3 (analysis seed 299 e182)."""
+        scaled the flow 2.6x short, and a fall of 1 m/s read as 0.3 (docs/flight.md)."""
         p, ff, d, last = self.p, m.front_flow, self.front.value, self.front.last_sample_t
         if rates is None or ff is None or d is None or now - ff.stamp_s > p.flow_timeout_s or ff.quality < p.flow_min_quality:
             return
@@ -433,7 +433,7 @@ class MAVStateUpdater:
         beam covered when the loss began (its footprint's radius at the height then, less
         ``body_radius_m``): a vehicle that went blind at speed brakes blind over floor no sensor
         has seen, and an edge there (a box below the beam's reach when the loss began) met the
-        rotors in the descent (analysis seed 281 e78; since session 36 the PX4Flows measure that
+        rotors in the descent (docs/flight.md, Limits; since session 36 the PX4Flows measure that
         travel). In both alarm modes: mode -1's TeraRanger, a 3 deg laser, sees below the centre,
         not below the rotors."""
         p = self.p

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import dataclasses
+import reprlib
 from pathlib import Path
 from dataclasses import dataclass, field, fields
 
@@ -33,8 +34,8 @@ class EstimationParams:
         1, 0, 255, "1", "PX4Flow quality below which flow is not used: PX4's EKF2_OF_QMIN and its in-air default "
         "(quality 0 is no flow); between it and 255 a reading's noise goes from flow_noise_worst_rad_s to "
         "flow_noise_rad_s and the gate refuses what disagrees. At 40, a 9.5 s link-loss hold 3 m over a floor of "
-        "low texture (quality ~26) refused 5 readings in 6 and drifted 0.41 m (analysis seed 315 e94; 0.14 m at 1; "
-        "10 and 1 tied on the seed's 2,000 episodes)"
+        "low texture (quality ~26) refused 5 readings in 6 and drifted 0.41 m (0.14 m at 1; "
+        "docs/flight.md, Session 34)"
     )
     flow_timeout_s: float = param(0.08, 0.01, 1.0, "s", "flow older than this is N/A")
     sonar_timeout_s: float = param(0.35, 0.05, 2.0, "s", "sonar older than this is N/A (10 Hz)")
@@ -80,7 +81,7 @@ class EstimationParams:
         0.1, 0.001, 1.0, "rad/s", "speed observers: angular noise of a PX4Flow reading at flow_min_quality (PX4's "
         "EKF2_OF_N_MAX), linear in quality between the two as EKF2 weighs it. With one noise for every quality "
         "and flow refused below 80, low texture dropped the bottom flow at random and a link-loss hold drifted 0.32 m "
-        "(seed 291 e1739; 0.07 m with this and flow_min_quality 40)"
+        "(0.07 m with this and flow_min_quality 40; docs/flight.md)"
     )
     observer_gate_sigma: float = param(
         4.0, 1.0, 20.0, "sigma", "speed observers: an innovation beyond this many standard deviations is not used (5 in a row: restart)"
@@ -236,7 +237,7 @@ class ControlParams:
     accel_observer_noise_sigma: float = param(
         3.0, 0.0, 10.0, "sigma", "horizontal disturbance observers: a push within this many standard deviations of "
         "what the IMU's own noise gives them is left out too (the noise measured in flight: rotor vibration of 1.4 "
-        "m/s^2 a tick made them push 0.3-0.7 m/s^2 at random, unseen in an alarm mode: fresh campaign seed 239 e989)"
+        "m/s^2 a tick made them push 0.3-0.7 m/s^2 at random, unseen in an alarm mode; docs/flight.md)"
     )
     accel_observer_lag_s: float = param(
         0.06, 0.0, 1.0, "s", "disturbance observers: attitude and motor lag between set-point and acceleration"
@@ -296,17 +297,17 @@ def load_params(path: str | Path) -> StackParams:
     (groups: estimation, behaviors, control, flight_machine). A missing or unreadable file, an
     unknown group or name, a value that is not a number, or one outside its declared bounds is an
     :class:`InputError` naming the file and the field (one line, exit 2 on the CLI)."""
-    import yaml
-
+    from inspect_pipe._yaml import load_yaml
     from inspect_pipe.errors import InputError
 
     src = str(path)
     try:
-        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(src, "parameter file not found", "give the path of a YAML or JSON parameter file") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+    except (OSError, UnicodeDecodeError) as err:
         raise InputError(src, f"not a readable YAML/JSON file ({type(err).__name__})", "a mapping {group: {name: value}}") from None
+    doc = load_yaml(text, src, "a mapping {group: {name: value}}")
     doc = {} if doc is None else doc
     if not isinstance(doc, dict):
         raise InputError(src, f"is {type(doc).__name__}", "a mapping {group: {name: value}}")
@@ -317,7 +318,7 @@ def load_params(path: str | Path) -> StackParams:
         if gname not in groups:
             raise InputError(src, f"field '{gname}': unknown group", "one of " + ", ".join(groups))
         if not isinstance(values, dict):
-            raise InputError(src, f"field '{gname}': is {type(values).__name__}", "a mapping {name: value}")
+            raise InputError(src, f"field '{gname}': is " + ("empty" if values is None else type(values).__name__), "a mapping {name: value}")
         group = groups[gname]
         known = {f.name: f for f in fields(group)}
         changes = {}
@@ -326,7 +327,7 @@ def load_params(path: str | Path) -> StackParams:
             if f is None:
                 raise InputError(src, f"field '{gname}.{name}': unknown parameter", f"one of the {gname} parameters (docs/flight.md)")
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
-                raise InputError(src, f"field '{gname}.{name}': is {value!r}", "a number")
+                raise InputError(src, f"field '{gname}.{name}': is {reprlib.repr(value)}", "a number")
             m = f.metadata
             if "min" in m and not (m["min"] <= value <= m["max"]):
                 raise InputError(src, f"field '{gname}.{name}': {value} outside [{m['min']}, {m['max']}] {m['unit']}", "a value within its bounds")

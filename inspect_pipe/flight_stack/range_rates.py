@@ -83,7 +83,7 @@ class SonarRangeRates:
         states): the samples a sonar gave between missed echoes at a shallow incidence came
         from whichever rays heard the surface and read 0.63 m/s against the vehicle's 0.07, and
         taken with a full window's noise they steered a link-loss hold 0.37 m off its point
-        (fresh seed 335 e806; docs/flight.md, Session 37)."""
+        (docs/flight.md, Session 37)."""
         p = self.p
         if self.turning(now, yaw):
             return

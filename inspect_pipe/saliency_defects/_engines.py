@@ -171,8 +171,11 @@ def _check_suffix(engine: str, path: Path) -> None:
     ``--engine saliency`` now that the default is onnx)."""
     suf = path.suffix.lower()
     for other, s in SUFFIX.items():
-        if other != engine and suf == s and path.is_file():
-            raise InputError(path, f"a {other} engine model ({s}), not one for --engine {engine}", f"add --engine {other}")
+        if other != engine and suf == s:
+            article = "an" if other[0] in "aeiou" else "a"
+            if not path.is_file():
+                raise InputError(path, "not found", f"a {s} file is {article} {other} engine model: add --engine {other} and give an existing file")
+            raise InputError(path, f"{article} {other} engine model ({s}), not one for --engine {engine}", f"add --engine {other}")
 
 
 def default_path(engine: str) -> Path:

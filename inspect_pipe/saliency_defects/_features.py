@@ -150,6 +150,8 @@ def check_image(image: np.ndarray) -> None:
         raise ValueError("empty image")
     if image.dtype != np.uint8:
         raise ValueError(f"expected 8-bit pixels, got {image.dtype}")
+    if min(image.shape[:2]) < 2:  # the features' gradients and reflect padding need two pixels a side
+        raise ValueError(f"image {image.shape[1]}x{image.shape[0]} is too small (sides >= 2 px)")
     if image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3)):
         return
     raise ValueError(f"expected a grey or 3-channel BGR image, got shape {image.shape}")

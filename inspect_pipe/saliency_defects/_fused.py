@@ -93,9 +93,17 @@ def load_fused_params(path: Path) -> dict:
     if not isinstance(cls, dict) or not cls:
         raise ValueError("fused parameter file has no classes")
     for k, c in cls.items():
-        w, t = c.get("weight_saliency"), c.get("threshold_u8")
-        if not isinstance(w, (int, float)) or not 0 <= w <= 1 or not isinstance(t, int) or not 1 <= t <= 255:
+        w, t = c.get("weight_saliency") if isinstance(c, dict) else None, c.get("threshold_u8") if isinstance(c, dict) else None
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w <= 1 or \
+                isinstance(t, bool) or not isinstance(t, int) or not 1 <= t <= 255:
             raise ValueError(f"fused parameters for {k!r}: weight must be in [0, 1] and threshold in 1..255")
+        area = c.get("min_area_px", 0)
+        if isinstance(area, bool) or not isinstance(area, int) or not 0 <= area <= 1_000_000:
+            raise ValueError(f"fused parameters for {k!r}: min_area_px must be a whole number of pixels, 0..1000000")
+    engines = p.get("engines") or {}
+    if not isinstance(engines, dict) or not all(isinstance(e, dict) and isinstance(e.get("sha256", ""), str)
+                                                and isinstance(e.get("file", ""), (str, type(None))) for e in engines.values()):
+        raise ValueError("fused parameters: 'engines' must map each engine to {file, sha256}")
     return p
 
 

@@ -20,6 +20,7 @@ role percolation plays in the crack detectors of Bonnin-Pascual and Ortiz).
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -344,10 +345,13 @@ def save_model(model: DefectModel, path: Path) -> None:
     header["classes"] = classes
     header["feature_geometry"] = {"n_hue": N_HUE, "n_sat": N_SAT}
     arrays["meta"] = np.frombuffer(json.dumps(header, indent=1).encode(), np.uint8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
+    import io
+
+    from inspect_pipe._files import atomic_write
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write(Path(path), buf.getvalue())  # a model being replaced is never left half-written
 
 
 def _check_tree(t: FeatureTable, tables, where: str) -> None:
@@ -362,6 +366,35 @@ def _check_tree(t: FeatureTable, tables, where: str) -> None:
     before = {u.name for u in tables[: tables.index(t)] if not u.pair and not u.tree_inputs}
     if not ok or not set(t.tree_inputs) <= before:
         raise ValueError(f"damaged model file: the tree table of {where} is incomplete")
+
+
+#: Largest smoothing a class may ask for (px): the shipped classes use 0-1.5; beyond this the
+#: Gaussian's kernel costs seconds per frame and blurs a crack away.
+MAX_SMOOTH_SIGMA_PX = 20.0
+
+
+def _check_class(c: ClassModel) -> None:
+    """A class read from a file must be usable as it stands: finite thresholds in order within
+    [0, 1], a feature level the features have, a sane smoothing, and every table the length its
+    kind has with one weight per table (else a damaged file decides with shifted tables, or fails
+    later on an image that is not at fault)."""
+    where = f"damaged model file: class {c.name!r}"
+    if not (0.0 <= c.low_threshold <= c.threshold <= 1.0):  # NaN fails every comparison
+        raise ValueError(f"{where}: thresholds must satisfy 0 <= low <= threshold <= 1")
+    if not 0.0 <= c.smooth_sigma_px <= MAX_SMOOTH_SIGMA_PX:
+        raise ValueError(f"{where}: smooth_sigma_px must be in [0, {MAX_SMOOTH_SIGMA_PX:g}]")
+    if c.min_area_px < 0 or c.level not in (0, 1):
+        raise ValueError(f"{where}: min_area_px must be >= 0 and the feature level 0 or 1")
+    for k, s in enumerate(c.stages):
+        if s.weights.shape != (len(s.tables),) or not np.isfinite(s.weights).all() or \
+                not (math.isfinite(s.bias) and math.isfinite(s.log_prior_odds)):
+            raise ValueError(f"{where}: stage {k} needs one finite weight per table and a finite bias")
+        for t in s.tables:
+            n = (t.tree_split.size + 1 if t.tree_inputs and t.tree_split is not None else PAIR_BINS * PAIR_BINS if t.pair
+                 else None if t.categorical else N_BINS)
+            ok = t.llr.ndim == 1 and t.llr.size > 0 and (n is None or t.llr.size == n) and np.isfinite(t.llr).all()
+            if not ok or not (math.isfinite(t.lo) and math.isfinite(t.hi) and t.lo < t.hi):
+                raise ValueError(f"{where}: table {t.name!r} of stage {k} is not a whole table of its kind")
 
 
 def load_model(path: Path) -> DefectModel:
@@ -413,5 +446,6 @@ def _from_header(header: dict, arrays: dict) -> DefectModel:
             train_score=dict(c.get("train_score", {})),
             level=int(c.get("level", 0)),
         )
+        _check_class(classes[cname])
     meta = {k: v for k, v in header.items() if k not in ("classes", "feature_geometry")}
     return DefectModel(classes, meta)

@@ -25,8 +25,8 @@ import numpy as np
 from ._core import TILE_PX, calibration_lut, decide_u8, tiles, to_u8
 from ._detect import SEVERITY_STATES, Detection, Region, regions_of
 from ._features import check_image
+from ._onnx_meta import ONNX_FORMAT, check_meta  # noqa: F401 - ONNX_FORMAT: re-exported (training, tests)
 
-ONNX_FORMAT = "inspect_pipe.defect_onnx/1"
 CLASSES = ("corrosion", "crack", "surface")
 #: Network input: RGB / 255, then (x - mean) / std per channel.
 INPUT_MEAN = (0.5, 0.5, 0.5)
@@ -114,8 +114,7 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
         meta = json.loads(raw)
     except json.JSONDecodeError:
         raise ValueError("ONNX model metadata 'inspect_pipe' is not JSON") from None
-    if meta.get("format") != ONNX_FORMAT:
-        raise ValueError(f"ONNX model format {meta.get('format')!r}, expected {ONNX_FORMAT!r}")
+    check_meta(meta)  # types and bounds of every field read below: a bad one is named here
     inp = meta.get("input", {})
     if (inp.get("layout"), inp.get("channels"), inp.get("multiple_of")) != ("NCHW", "RGB", MULTIPLE_OF) or \
             len(inp.get("mean", ())) != 3 or len(inp.get("std", ())) != 3:
@@ -123,6 +122,9 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
     ins, outs = sess.get_inputs(), sess.get_outputs()
     if len(ins) != 1 or len(ins[0].shape) != 4 or ins[0].shape[1] != 3 or ins[0].name != inp.get("name"):
         raise ValueError(f"ONNX model input {[(i.name, i.shape) for i in ins]} does not match its metadata")
+    if any(isinstance(d, int) for k, d in enumerate(ins[0].shape) if k != 1):
+        raise ValueError(f"ONNX model input {ins[0].shape} has a fixed batch or size (this code feeds any batch and any "
+                         f"height and width, multiples of {MULTIPLE_OF}: export with dynamic axes)")
     classes = tuple(meta.get("classes", ()))
     sev = meta.get("severity")
     want = {meta.get("output", {}).get("name", "prob"): len(classes)}
@@ -152,9 +154,29 @@ def load_onnx_model(path: Path, *, threads: int = 1) -> OnnxModel:
             raise ValueError(f"ONNX model metadata: calibration of {k!r} must give a gain in [0.1, 100] at the class's operating point")
         cal[k] = (thresholds[k], float(c["gain"]))
         thresholds[k] = 128
-    return OnnxModel(path, sess, meta, classes, thresholds,
-                     {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes},
-                     sev.get("output") if sev is not None else None, tuple(float(b) for b in bias), cal)
+    model = OnnxModel(path, sess, meta, classes, thresholds,
+                      {k: int(meta.get("min_area_px", {}).get(k, MIN_AREA_PX.get(k, 64))) for k in classes},
+                      sev.get("output") if sev is not None else None, tuple(float(b) for b in bias), cal)
+    _probe(model)
+    return model
+
+
+def _probe(model: OnnxModel) -> None:
+    """Run the network once on two blank 64 x 64 images: its outputs must have the batch, the
+    channels and the size (64 / the metadata's stride) that the metadata says (a few ms)."""
+    stride, side = _stride(model), 4 * MULTIPLE_OF
+    try:
+        prob, states = _run(model, np.zeros((2, 3, side, side), np.float32), severity=True)
+    except Exception as err:  # noqa: BLE001 - onnxruntime's errors have no common base class
+        first = str(err).strip().splitlines()[0][:160] if str(err).strip() else type(err).__name__
+        raise ValueError(f"ONNX model does not run on a {side} x {side} image ({first})") from None
+    want = {"prob": (2, len(model.classes), side // stride, side // stride)}
+    if model.severity_output is not None:
+        want["severity"] = (2, len(SEVERITY_STATES), side // stride, side // stride)
+    for name, got in (("prob", prob), ("severity", states)):
+        if name in want and (got is None or tuple(got.shape) != want[name]):
+            raise ValueError(f"ONNX model output {name!r} is {None if got is None else tuple(got.shape)} for a {side} x {side} "
+                             f"image, not {want[name]} as its metadata (classes, output stride {stride}) says")
 
 
 def _prepare(image: np.ndarray, meta: dict) -> np.ndarray:

@@ -13,9 +13,9 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from inspect_pipe._yaml import load_yaml
 from inspect_pipe.errors import InputError
 
 from ._walls import Wall
@@ -212,10 +212,5 @@ def load_survey_plan(path: str | Path) -> SurveyPlan:
         raise InputError(str(p), "no such survey plan file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(str(p), f"cannot read the survey plan ({err.__class__.__name__})") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        at = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputError(str(p), f"not valid YAML{at}") from None
+    doc = load_yaml(text, str(p), "docs/ship.md describes the survey plan")
     return parse_survey_plan(doc, str(p))
