@@ -1,10 +1,14 @@
 """One check every image reader shares: a JPEG or PNG cut short (a copy interrupted, a card pulled)
 decodes without an error in OpenCV, which fills the missing rows with grey and prints a stray
-libjpeg line; so it is refused by its missing end marker before it is decoded."""
+libjpeg line; so it is refused by its missing end marker before it is decoded. And one reader,
+:func:`imread`, for which a file OpenCV refuses to decode is unreadable, not an exception."""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import cv2
+import numpy as np
 
 
 def truncation(path: Path) -> str:
@@ -32,3 +36,12 @@ def truncation(path: Path) -> str:
         if b"IEND" not in tail:
             return "truncated PNG (no IEND chunk)"
     return ""
+
+
+def imread(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
+    """``cv2.imread``, with what OpenCV raises for a file it will not decode (a header claiming
+    more than 2^30 pixels, a damaged TIFF directory) read as it reads any unreadable file: None."""
+    try:
+        return cv2.imread(str(path), flags)
+    except cv2.error:
+        return None

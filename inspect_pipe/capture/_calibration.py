@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from inspect_pipe._files import atomic_write
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.errors import InputError
 
@@ -262,7 +262,7 @@ def read_grey(path: Path) -> np.ndarray:
     why = truncation(path)
     if why:
         raise InputError(str(path), why, "copy the image again, or leave it out")
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    img = imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None or img.size == 0:
         raise InputError(str(path), "unreadable or not an image", "give calibration images (PNG, JPEG ...)")
     return img

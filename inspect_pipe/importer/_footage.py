@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.errors import InputError
 
 __all__ = ["Footage", "FootageFrame", "IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "open_footage", "parse_utc", "resample", "write_drone_footage"]
@@ -63,7 +63,7 @@ class Footage:
             for f in frames:
                 if why := truncation(f.path):
                     raise InputError(str(f.path), why, "copy it again from the card, or move it out of the folder")
-                img = cv2.imread(str(f.path), flag)
+                img = imread(str(f.path), flag)
                 if img is None:
                     raise InputError(str(f.path), "cannot decode the image", "a JPEG, PNG or TIFF file")
                 yield f, img
@@ -268,7 +268,7 @@ def write_drone_footage(sweep_dir: str | Path, out_dir: str | Path, *, clock_off
         t = parse_utc(f.t_utc, str(sw.path)) + clock_offset_s
         local = _dt.datetime.fromtimestamp(t, tz)
         why = truncation(f.image_path)
-        img = None if why else cv2.imread(str(f.image_path), cv2.IMREAD_COLOR)
+        img = None if why else imread(str(f.image_path), cv2.IMREAD_COLOR)
         if img is None:
             raise InputError(str(f.image_path), why or "cannot decode the image")
         pil = Image.fromarray(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.errors import InputError
 
 from ._register import FrameError
@@ -20,7 +20,7 @@ def read_image(path: Path) -> np.ndarray:
     why = truncation(path)
     if why:
         raise FrameError(why)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise FrameError("unreadable or corrupt image")
     if img.dtype == np.uint16:

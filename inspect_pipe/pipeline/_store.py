@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from inspect_pipe._files import write_json, write_png
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.errors import InputError
 
 RUN_FORMAT = "inspect_pipe.run/1"
@@ -42,7 +42,7 @@ def read_png(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     if not path.is_file():
         raise InputError(str(path), "missing")
     why = truncation(path)
-    img = None if why else cv2.imread(str(path), flags)
+    img = None if why else imread(str(path), flags)
     if img is None:
         raise InputError(str(path), why or "unreadable image")
     return img

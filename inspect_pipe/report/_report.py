@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 import inspect_pipe
+from inspect_pipe._images import imread
 from inspect_pipe.errors import InputError
 from inspect_pipe.ship import locate
 
@@ -127,7 +128,7 @@ def _region(params: ReportParams, survey_raw: dict, sweep, views, wall: WallMap,
         return tuple(float(x) for x in r)  # type: ignore[return-value]
     tex = getattr(getattr(sweep, "meta", None), "wall_texture", None)
     if tex is not None:  # simulated wall: the textured part is the wall under survey
-        img = cv2.imread(str(tex.image), cv2.IMREAD_UNCHANGED)
+        img = imread(str(tex.image), cv2.IMREAD_UNCHANGED)
         if img is not None:
             u0, v1 = tex.origin_uv
             return (u0, v1 - img.shape[0] * tex.m_per_px, u0 + img.shape[1] * tex.m_per_px, v1)
@@ -139,7 +140,7 @@ def _region(params: ReportParams, survey_raw: dict, sweep, views, wall: WallMap,
 
 
 def _frame_sharpness(path: Path) -> float | None:
-    g = cv2.imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
+    g = imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_2)
     return None if g is None else sharpness(cv2.resize(g, (g.shape[1] * 2, g.shape[0] * 2)))
 
 

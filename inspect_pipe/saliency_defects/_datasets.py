@@ -18,6 +18,8 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from inspect_pipe._images import imread
+
 SPLIT_RULE = 'eval if int(sha1("<set>/<stem>").hexdigest(), 16) % 3 == 0 else train'
 
 #: Data set name -> (folder under data/defects, class it trains).
@@ -45,7 +47,7 @@ class LabelledImage:
 
 
 def _read(path: Path, flags: int) -> np.ndarray:
-    img = cv2.imread(str(path), flags)
+    img = imread(str(path), flags)
     if img is None:
         raise ValueError(f"{path}: unreadable image")
     return img

@@ -147,3 +147,29 @@ def test_mavlink_urls_that_cannot_open_are_one_line():
     except ImportError:
         with pytest.raises(InputError, match="needs pyserial"):
             MavlinkEndpoint("/dev/ttyUSB0", system_id=255, component_id=190)
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+
+
+def test_an_image_claiming_more_pixels_than_opencv_decodes_is_unreadable_everywhere(tmp_path):
+    import cv2
+
+    from inspect_pipe._images import imread
+    from inspect_pipe.mosaic._io import FrameError, read_image
+
+    p = tmp_path / "huge.png"
+    p.write_bytes(_png_claiming(100000, 100000))
+    with pytest.raises(cv2.error):  # what OpenCV itself does with it
+        cv2.imread(str(p))
+    assert imread(p) is None
+    with pytest.raises(FrameError, match="unreadable"):
+        read_image(p)

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.capture._clock import Clock
 from inspect_pipe.capture._geometry import CameraModel
 from inspect_pipe.capture._source import Grab, SourceInfo, default_cam_to_body
@@ -89,7 +89,7 @@ class ReplaySource:
             raise InputError(str(self.path), "no images found", f"expected files ending in {', '.join(sorted(IMAGE_SUFFIXES))}")
         if why := truncation(files[0]):
             raise InputError(str(files[0]), why)
-        first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
+        first = imread(str(files[0]), cv2.IMREAD_COLOR)
         if first is None:
             raise InputError(str(files[0]), "unreadable image")
         self.kind = "folder"
@@ -132,11 +132,11 @@ class ReplaySource:
         if why := truncation(item.image_path if self.kind == "sweep" else item):
             raise InputError(str(item.image_path if self.kind == "sweep" else item), why)
         if self.kind == "sweep":
-            img = cv2.imread(str(item.image_path), cv2.IMREAD_UNCHANGED)
+            img = imread(str(item.image_path), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise InputError(str(item.image_path), f"frame {item.index}: unreadable image")
             return img, item.t_s, item.exposure_s, item
-        img = cv2.imread(str(item), cv2.IMREAD_COLOR)
+        img = imread(str(item), cv2.IMREAD_COLOR)
         if img is None:
             raise InputError(str(item), "unreadable image")
         return img, self._i / self.rate_hz, 0.0, None

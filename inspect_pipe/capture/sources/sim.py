@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread, truncation
 from inspect_pipe.capture._clock import ManualClock
 from inspect_pipe.capture._geometry import (
     SIM_CALIBRATION,
@@ -322,7 +322,7 @@ class SimSource:
         wall = faced_wall(sc)
         tex = sc.world.texture(wall.wall.sim)
         if tex is not None:
-            img = None if truncation(tex.image) else cv2.imread(str(tex.image), cv2.IMREAD_COLOR)
+            img = None if truncation(tex.image) else imread(str(tex.image), cv2.IMREAD_COLOR)
             if img is None:
                 raise InputError(str(tex.image), f"cannot read the {wall.wall.sim} wall's texture", "a PNG or JPEG image")
             texture, mpp, origin = img, tex.m_per_px, tex.origin_uv

@@ -12,6 +12,7 @@ import math
 import cv2
 import numpy as np
 
+from inspect_pipe._images import imread
 from inspect_pipe.flight.scenario import Scenario
 
 __all__ = ["WallCamera"]
@@ -42,7 +43,7 @@ class WallCamera:
         f = width / 2 / math.tan(hfov / 2)
         self.K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
         tex = scenario.world.front_wall_texture
-        img = cv2.imread(str(tex.image), cv2.IMREAD_COLOR) if tex is not None else None
+        img = imread(str(tex.image), cv2.IMREAD_COLOR) if tex is not None else None
         if img is not None and tex is not None:
             self.texture, self.m_per_px, self.origin_uv = img, tex.m_per_px, tex.origin_uv
         else:
