@@ -17,7 +17,7 @@ import typer
 from typer.core import TyperGroup
 
 from cli._common import StageProgress, one_line_errors
-from inspect_pipe._images import truncation
+from inspect_pipe._images import imread_checked, truncation
 from inspect_pipe.errors import InputError
 from inspect_pipe.saliency_defects._core import TILE_PX
 from inspect_pipe.saliency_defects._detect import SEVERITY_STATES
@@ -105,12 +105,14 @@ def read_image(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
     why = truncation(path)
     if why:
         raise InputError(path, why, "copy the image again" if why.startswith("truncated") else "give an image file")
-    try:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:  # listening to the decoder: libjpeg decodes damaged data and only prints that it did
+        img, said = imread_checked(path, cv2.IMREAD_UNCHANGED)
     except cv2.error as err:  # e.g. a header claiming more pixels than OpenCV decodes (2**30)
         raise InputError(path, f"unreadable image ({_cv_reason(err)})", "give an image of at most 1 gigapixel") from None
     if img is None or img.size == 0:
-        raise InputError(path, "unreadable or empty image")
+        raise InputError(path, "unreadable or empty image" + (f" ({said})" if said else ""))
+    if said:
+        raise InputError(path, f"damaged image data ({said})", "copy the image again from the camera or card")
     if img.dtype != np.uint8:
         raise InputError(path, f"{img.dtype} pixels are not supported", "convert to 8-bit")
     valid = None

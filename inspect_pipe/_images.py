@@ -5,6 +5,8 @@ libjpeg line; so it is refused by its missing end marker before it is decoded. A
 
 from __future__ import annotations
 
+import re
+import sys
 from pathlib import Path
 
 import cv2
@@ -45,3 +47,32 @@ def imread(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None
         return cv2.imread(str(path), flags)
     except cv2.error:
         return None
+
+
+def imread_checked(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> tuple[np.ndarray | None, str]:
+    """(``cv2.imread``'s image, the errors the decoder reported about the file: "" when none; what
+    OpenCV raises, cv2.error, is raised). libjpeg
+    decodes a JPEG whose data is damaged but whose end marker is there (grey rows, shifted blocks)
+    and only prints "Corrupt JPEG data" to stderr; libtiff and libpng print their errors the same
+    way. This reads them from the process's stderr (file descriptor 2), redirected for the
+    duration of the read, so that a caller can refuse the image and say why. Not for threads: the
+    redirection is process-wide (the CLI reads its inputs one at a time)."""
+    import os
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as said:
+        os.dup2(said.fileno(), 2)
+        try:
+            img = cv2.imread(str(path), flags)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        said.seek(0)
+        text = said.read(4096).decode("utf-8", "replace")
+    # OpenCV's own log prefix ("[ERROR:0@0.6] global grfmt_tiff.cpp:117 TIFF_Error ") is left out
+    # A warning ("libpng warning: iCCP: known incorrect sRGB profile", common and harmless) is not damage.
+    lines = [re.sub(r"^\[\w+:[\d@.]+\] global \S+ (TIFF_Error |imread_ )?", "", ln.strip())
+             for ln in text.splitlines() if ln.strip() and "warning" not in ln.lower()]
+    return img, "; ".join(dict.fromkeys(lines))[:200]

@@ -198,3 +198,17 @@ def test_too_small_for_the_saliency_features(tmp_path):
     img = tmp_path / "one.png"
     cv2.imwrite(str(img), np.zeros((1, 1, 3), np.uint8))
     _one_line_exit_2(_detect(img, "-o", tmp_path / "o", "--engine", "saliency"), "too small")
+
+
+def test_a_jpeg_with_damaged_data_but_its_end_marker_is_refused_with_the_decoders_reason(tmp_path):
+    ok, buf = cv2.imencode(".jpg", cv2.imread(str(IMG)))
+    half = buf.tobytes()[: len(buf) // 2] + b"\xff\xd9"  # a card pulled mid-copy, the marker restored by a tool
+    bad = tmp_path / "half.jpg"
+    bad.write_bytes(half)
+    assert cv2.imread(str(bad)) is not None  # OpenCV alone decodes it, grey rows and all
+    r = _detect(bad, "-o", tmp_path / "o", "--engine", "saliency")
+    _one_line_exit_2(r, str(bad), "damaged image data", "Corrupt JPEG data")
+    assert not (tmp_path / "o").exists()
+    good = tmp_path / "whole.jpg"
+    good.write_bytes(buf.tobytes())
+    assert _detect(good, "-o", tmp_path / "o2", "--engine", "saliency").exit_code == 0
