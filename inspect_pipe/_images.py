@@ -49,20 +49,34 @@ def imread(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None
         return None
 
 
+#: What a decoder prints when it decodes (or gives up on) damaged data; anything else on stderr
+#: during a read (a warning, another thread's output, a progress bar) is not about the image.
+_DAMAGE = re.compile(r"Corrupt JPEG data|Premature end of JPEG|libpng error|TIFF_Error|TIFFReadDirectory|TIFFFetchDirectory|imread_.*can't read")
+#: libjpeg's note about a few padding bytes before a marker (a writer's quirk; no pixel changes);
+#: hundreds of them are scan data lost (a zeroed block).
+_HARMLESS = re.compile(r"\b([1-9]|1[0-6]) extraneous bytes before marker")
+
+
 def imread_checked(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> tuple[np.ndarray | None, str]:
-    """(``cv2.imread``'s image, the errors the decoder reported about the file: "" when none; what
-    OpenCV raises, cv2.error, is raised). libjpeg
-    decodes a JPEG whose data is damaged but whose end marker is there (grey rows, shifted blocks)
-    and only prints "Corrupt JPEG data" to stderr; libtiff and libpng print their errors the same
-    way. This reads them from the process's stderr (file descriptor 2), redirected for the
-    duration of the read, so that a caller can refuse the image and say why. Not for threads: the
-    redirection is process-wide (the CLI reads its inputs one at a time)."""
+    """(``cv2.imread``'s image, the damage its decoder reported: "" when none; what OpenCV
+    raises, cv2.error, is raised). libjpeg decodes a JPEG whose data is damaged but whose end
+    marker is there (grey rows, shifted blocks) and only prints "Corrupt JPEG data" to stderr;
+    libtiff and libpng print their errors the same way. This reads them from the process's stderr
+    (file descriptor 2), redirected to a temporary file for the duration of the read, and keeps
+    only the decoders' damage reports (:data:`_DAMAGE`). Not for threads: the redirection is
+    process-wide (the CLI reads its inputs one at a time). Where stderr cannot be redirected (it is
+    closed, no temporary file can be made) the image is read without listening."""
     import os
     import tempfile
 
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as said:
+    try:
+        said = tempfile.TemporaryFile()
+        saved = os.dup(2)
+    except OSError:
+        return cv2.imread(str(path), flags), ""
+    with said:
+        if sys.stderr is not None:
+            sys.stderr.flush()
         os.dup2(said.fileno(), 2)
         try:
             img = cv2.imread(str(path), flags)
@@ -70,9 +84,8 @@ def imread_checked(path: Path | str, flags: int = cv2.IMREAD_COLOR) -> tuple[np.
             os.dup2(saved, 2)
             os.close(saved)
         said.seek(0)
-        text = said.read(4096).decode("utf-8", "replace")
+        text = said.read(65536).decode("utf-8", "replace")
     # OpenCV's own log prefix ("[ERROR:0@0.6] global grfmt_tiff.cpp:117 TIFF_Error ") is left out
-    # A warning ("libpng warning: iCCP: known incorrect sRGB profile", common and harmless) is not damage.
-    lines = [re.sub(r"^\[\w+:[\d@.]+\] global \S+ (TIFF_Error |imread_ )?", "", ln.strip())
-             for ln in text.splitlines() if ln.strip() and "warning" not in ln.lower()]
+    lines = [re.sub(r"^\[\s*\w+:[\d@.]+\] global \S+ (TIFF_Error |imread_ )?", "", ln.strip())
+             for ln in text.splitlines() if _DAMAGE.search(ln) and not _HARMLESS.search(ln)]
     return img, "; ".join(dict.fromkeys(lines))[:200]

@@ -27,21 +27,25 @@ MAX_VALUES = 1_000_000
 _FLOAT_1_2 = re.compile(
     r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
     |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?
     |[-+]?\.(?:inf|Inf|INF)
     |\.(?:nan|NaN|NAN))$""",
     re.X,
 )
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 floats and no duplicate keys."""
+class Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats and no duplicate keys (subclass it to add a tag's
+    constructor and pass it to :func:`load_yaml`)."""
 
     def construct_mapping(self, node, deep=False):  # noqa: D102 - PyYAML's hook
         if isinstance(node, yaml.MappingNode):
-            self.flatten_mapping(node)
+            # The mapping's own keys, before merge keys (``<<: *base``) copy others in: a key the
+            # mapping gives once overrides the merged one, as YAML means it.
             seen = set()
             for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
                 key = self.construct_object(key_node, deep=deep)
                 try:
                     dup = key in seen
@@ -55,8 +59,8 @@ class _Loader(yaml.SafeLoader):
 
 
 # The resolvers are class-level lists shared with SafeLoader: copy before changing ours.
-_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_1_2, list("-+0123456789."))
+Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_1_2, list("-+0123456789."))
 
 
 def _count(doc: Any, limit: int) -> int:
@@ -82,10 +86,10 @@ def _count(doc: Any, limit: int) -> int:
     return walk(doc, 0)
 
 
-def load_yaml(text: str, where: str, hint: str = "") -> Any:
+def load_yaml(text: str, where: str, hint: str = "", *, loader: type[Loader] = Loader) -> Any:
     """The document in ``text`` (YAML or JSON); ``where`` names the file in the error."""
     try:
-        doc = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+        doc = yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
@@ -94,8 +98,9 @@ def load_yaml(text: str, where: str, hint: str = "") -> Any:
         raise InputError(where, f"not valid YAML{at}{why}", hint) from None
     except RecursionError:
         raise InputError(where, "not valid YAML: nested too deeply", hint) from None
-    except ValueError:  # an integer of more digits than Python converts (4,300)
-        raise InputError(where, "not valid YAML: a number of thousands of digits", hint) from None
+    except ValueError as err:  # e.g. an integer of more digits than Python converts (4,300), a 30th of February
+        why = "a number of thousands of digits" if "digits" in str(err) else str(err).strip().splitlines()[0][:80]
+        raise InputError(where, f"not valid YAML: {why}", hint) from None
     try:
         n = _count(doc, MAX_VALUES)
     except RecursionError:

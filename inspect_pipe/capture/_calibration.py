@@ -408,18 +408,20 @@ def _load_opencv_yaml(path: Path, text: str) -> CameraModel:
     """OpenCV FileStorage YAML (``%YAML:1.0``, ``!!opencv-matrix`` nodes) read with PyYAML: OpenCV's
     own reader can abort the process on a damaged matrix node (a missing ``cols``), where this
     gives one line."""
-    import yaml
+    from inspect_pipe._yaml import Loader, load_yaml
 
     where = str(path)
 
-    class _Loader(yaml.SafeLoader):
+    class _Loader(Loader):
         pass
 
     _Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", lambda loader, node: dict(loader.construct_mapping(node, deep=True)))
     body = re.sub(r"\A\s*%YAML:1\.0", "%YAML 1.1", text, count=1)
     try:
-        doc = yaml.load(body, Loader=_Loader)  # noqa: S506 - a SafeLoader with one more mapping tag
-    except (yaml.YAMLError, ValueError, TypeError):
+        doc = load_yaml(body, where, _READ_HINT, loader=_Loader)  # the project's reader, with one more mapping tag
+    except InputError as err:
+        raise InputError(where, f"not a readable OpenCV FileStorage file ({err.problem})", _READ_HINT) from None
+    except TypeError:
         raise InputError(where, "not a readable OpenCV FileStorage file", _READ_HINT) from None
     if not isinstance(doc, dict):
         raise InputError(where, "not a readable OpenCV FileStorage file", _READ_HINT)

@@ -491,7 +491,8 @@ def load_scenario(path: str | Path) -> Scenario:
     except OSError as err:
         raise InputError(str(path), f"cannot read it ({err.strerror or type(err).__name__})", "a readable YAML or JSON scenario") from None
     doc = load_yaml(text, str(path), "a YAML or JSON scenario")
-    return parse_scenario(doc, source=str(path), base=path.parent)
+    # files it names are relative to its folder; a pipe's (/dev/fd) is no folder: the current one
+    return parse_scenario(doc, source=str(path), base=path.parent if path.is_file() else Path.cwd())
 
 
 def parse_scenario(doc: Any, *, source: str = "<scenario>", base: Path = Path(".")) -> Scenario:
@@ -606,7 +607,8 @@ def _check_start(r: _Checks, world: World, pos: tuple[float, ...]) -> None:
     tops = [b.max_m[2] for b in world.boxes if b.min_m[0] <= x <= b.max_m[0] and b.min_m[1] <= y <= b.max_m[1]]
     if abs(z) > 0.01 and not any(abs(z - top) <= 0.01 for top in tops):
         raise r.fail(f, f"z={z:g} is in mid-air (the vehicle starts landed)",
-                     "z 0 (the tank top)" + "".join(f" or {top:g} (the top of the box under it)" for top in tops))
+                     "".join(f"z {top:g} (the top of the box under it) or " for top in tops)
+                     + f"z 0 on the tank top, at least {VEHICLE_RADIUS_M} m from every box")
     for i, b in enumerate(world.boxes):
         near = all(b.min_m[k] - rad < pos[k] < b.max_m[k] + rad for k in range(2))
         if near and z < b.max_m[2]:

@@ -173,3 +173,20 @@ def test_an_image_claiming_more_pixels_than_opencv_decodes_is_unreadable_everywh
     assert imread(p) is None
     with pytest.raises(FrameError, match="unreadable"):
         read_image(p)
+
+
+def test_merge_keys_override_as_yaml_means_them_and_other_value_errors_say_theirs():
+    doc = load_yaml("base: &b {a: 1, b: 2}\nd: {<<: *b, b: 3}\ne: {<<: [{a: 1}, {a: 2}]}\n", "x")
+    assert doc["d"] == {"a": 1, "b": 3} and doc["e"] == {"a": 1}
+    with pytest.raises(InputError, match="day is out of range"):
+        load_yaml("date: 2024-02-30\n", "x")
+    assert load_yaml("a: -.5e3\n", "x") == {"a": -500.0}
+
+
+def test_an_opencv_camera_file_goes_through_the_same_reader(tmp_path):
+    from inspect_pipe.capture._calibration import load_camera
+
+    p = tmp_path / "camera.yaml"
+    p.write_text("%YAML:1.0\n---\ncamera_matrix: " + "[" * 2000 + "]" * 2000 + "\n")
+    with pytest.raises(InputError, match="not a readable OpenCV FileStorage file .*nested too deeply"):
+        load_camera(p)

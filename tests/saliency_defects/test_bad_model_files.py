@@ -18,6 +18,8 @@ from cli.main import app
 from inspect_pipe.saliency_defects import _onnx_detect as od
 from inspect_pipe.saliency_defects._model import load_model, save_model
 
+from tests.reliability.test_user_files import _png_claiming
+
 from ._onnx_bytes import one_node_model, with_metadata
 
 FIX = Path(__file__).resolve().parents[1] / "fixtures" / "defects"
@@ -139,14 +141,7 @@ def test_damaged_fused_parameters_are_refused_when_loaded(tmp_path, edit, words)
 
 
 def test_an_image_whose_header_claims_too_many_pixels_fails_alone(tmp_path):
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    huge = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 100000, 100000, 8, 0, 0, 0, 0)) + \
-        chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    huge = _png_claiming(100000, 100000)
     folder = tmp_path / "in"
     folder.mkdir()
     (folder / "z_huge.png").write_bytes(huge)
@@ -212,3 +207,35 @@ def test_a_jpeg_with_damaged_data_but_its_end_marker_is_refused_with_the_decoder
     good = tmp_path / "whole.jpg"
     good.write_bytes(buf.tobytes())
     assert _detect(good, "-o", tmp_path / "o2", "--engine", "saliency").exit_code == 0
+
+
+def test_what_else_reaches_stderr_during_a_read_is_not_damage(tmp_path):
+    """A progress bar forced on (FORCE_COLOR, as in CI logs) redraws from its own thread while an
+    image is read; a few padding bytes before a JPEG marker change no pixel; a closed stderr."""
+    import os
+    import subprocess
+    import sys
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    big = cv2.resize(cv2.imread(str(IMG)), (3000, 2000))
+    for k in range(3):
+        cv2.imwrite(str(folder / f"im{k}.jpg"), big)
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, FORCE_COLOR="1", COLUMNS="100")
+    r = subprocess.run([sys.executable, "-m", "cli.main", "detect", str(folder), "-o", str(tmp_path / "o"), "--engine", "saliency",
+                        "--kind", "crack"], capture_output=True, text=True, cwd=root, env=env, timeout=300)
+    assert r.returncode == 0 and "damaged" not in r.stdout + r.stderr, r.stdout + r.stderr
+    assert len(json.loads((tmp_path / "o" / "defects.json").read_text())["images"]) == 3
+    # two padding bytes before the frame header: libjpeg notes them, no pixel changes
+    raw = (folder / "im0.jpg").read_bytes()
+    sof = raw.index(b"\xff\xc0")
+    padded = tmp_path / "padded.jpg"
+    padded.write_bytes(raw[:sof] + b"\x00\x00" + raw[sof:])
+    assert np.array_equal(cv2.imread(str(padded)), cv2.imread(str(folder / "im0.jpg")))
+    assert _detect(padded, "-o", tmp_path / "o2", "--engine", "saliency", "--kind", "crack").exit_code == 0
+    # stderr closed (2>&-): read without listening, as before
+    r = subprocess.run([sys.executable, "-m", "cli.main", "detect", str(padded), "-o", str(tmp_path / "o3"), "--engine", "saliency",
+                        "--kind", "crack"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=root, timeout=300,
+                       preexec_fn=lambda: os.close(2))
+    assert r.returncode == 0 and (tmp_path / "o3" / "defects.json").exists()
