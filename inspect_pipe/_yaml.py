@@ -1,4 +1,5 @@
-"""Reading a user's YAML or JSON file (scenario, stack parameters, survey plan, camera_info) into
+"""Reading a user's YAML or JSON file (scenario, stack parameters, survey plan, camera file: ROS
+camera_info or OpenCV FileStorage) into
 plain Python values, every failure one :class:`~inspect_pipe.errors.InputError`.
 
 PyYAML's ``safe_load`` with four changes a user's file needs:
@@ -68,7 +69,7 @@ def _count(doc: Any, limit: int) -> int:
     sub-documents, which aliases make, are counted at each use, as a reader walks them)."""
     memo: dict[int, int] = {}
 
-    def walk(v: Any, depth: int) -> int:
+    def walk(v: Any) -> int:
         if isinstance(v, (list, dict)):
             k = id(v)
             if k in memo:
@@ -76,14 +77,14 @@ def _count(doc: Any, limit: int) -> int:
             items = v.values() if isinstance(v, dict) else v
             n = 1 + (len(v) if isinstance(v, dict) else 0)
             for x in items:
-                n += walk(x, depth + 1)
+                n += walk(x)
                 if n > limit:
                     break
             memo[k] = n
             return n
         return 1
 
-    return walk(doc, 0)
+    return walk(doc)
 
 
 def load_yaml(text: str, where: str, hint: str = "", *, loader: type[Loader] = Loader) -> Any:
