@@ -100,5 +100,11 @@ def backends() -> list[Backend]:
     out.append(Backend("mavlink", "vehicle", mav,
                        "pymavlink installed (MAVLink vehicle link)" if mav else "pymavlink not installed (pip install 'inspect-pipe[mavlink]')",
                        "fly --vehicle mavlink:URL"))
+    ser = _has("serial")
+    out.append(Backend("mavlink-serial", "vehicle", mav and ser,
+                       "pymavlink and pyserial installed (an autopilot on a serial device)" if mav and ser
+                       else "pyserial not installed (pip install 'inspect-pipe[serial]'); udp and tcp links need only pymavlink" if mav
+                       else "pymavlink and pyserial not installed (pip install 'inspect-pipe[mavlink,serial]')",
+                       "fly --vehicle mavlink:/dev/ttyACM0,57600"))
     del cv2
     return out

@@ -84,8 +84,22 @@ def test_doctor_lists_every_backend(tmp_path):
     res = run("doctor")
     assert res.exit_code == 0
     names = [line.split()[2] for line in res.output.splitlines()]
-    assert {"v4l2", "ids", "replay", "sim", "mavlink"} <= set(names)
+    assert {"v4l2", "ids", "replay", "sim", "mavlink", "mavlink-serial"} <= set(names)
     assert all(line[:3] in ("ok ", "no ") for line in res.output.splitlines())
+
+
+def test_doctor_says_whether_a_serial_autopilot_link_can_open(monkeypatch):
+    # GIVEN pymavlink but no pyserial (the [serial] extra is not in the default install)
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "serial" else real(name, *a))
+    from inspect_pipe.capture import backends
+
+    row = next(b for b in backends() if b.name == "mavlink-serial")
+    # THEN the serial row is not usable and names the extra, while udp/tcp links stay usable
+    assert not row.usable and "inspect-pipe[serial]" in row.why
+    assert next(b for b in backends() if b.name == "mavlink").usable
 
 
 def test_a_cut_video_is_one_line_without_ffmpegs_own_chatter(tmp_path):
