@@ -19,8 +19,12 @@ from __future__ import annotations
 import argparse
 import math
 
-import mujoco
+import sys
 
+import mujoco
+import numpy as np
+
+from inspect_pipe.errors import InputError
 from inspect_pipe.flight.runner import run_scenario
 from inspect_pipe.flight.scenario import load_scenario
 from inspect_pipe.flight.sensors import SensorSpecs, _fan
@@ -28,15 +32,6 @@ from inspect_pipe.flight.vehicle_sim import QuadrotorSim
 
 BEAMS = {"front": 0.0, "left": math.pi / 2, "right": -math.pi / 2,
          "front_left (new)": math.pi / 4, "front_right (new)": -math.pi / 4}
-
-
-def _quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """(w, x, y, z) of the ZYX Euler angles, as the simulator's state holds them."""
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def whatif(path: str, window_s: float, near_m: float) -> None:
@@ -53,11 +48,14 @@ def whatif(path: str, window_s: float, near_m: float) -> None:
     fans = {k: _fan(a, specs) for k, a in BEAMS.items()}
     limits = {"sure": math.radians(specs.grazing_deg), "maybe": math.radians(specs.miss_all_deg)}
     first: dict = {}
+    quat = np.zeros(4)
     for r in recs:
         if r.t < tc - window_s:
             continue
         d.qpos[:3] = r.pos_true
-        d.qpos[3:7] = _quat(*r.rpy_true)
+        roll, pitch, yaw = r.rpy_true
+        mujoco.mju_euler2Quat(quat, np.array([yaw, pitch, roll]), "zyx")  # the simulator's ZYX angles
+        d.qpos[3:7] = quat
         mujoco.mj_forward(m, d)
         for k, fan in fans.items():
             for tag, lim in limits.items():
@@ -81,7 +79,10 @@ def main() -> None:
     ap.add_argument("--near", type=float, default=1.5, help="an echo nearer than this counts (m)")
     a = ap.parse_args()
     for p in a.scenarios:
-        whatif(p, a.window, a.near)
+        try:
+            whatif(p, a.window, a.near)
+        except InputError as err:
+            sys.exit(f"error: {err}")
 
 
 if __name__ == "__main__":
