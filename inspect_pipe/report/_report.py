@@ -268,7 +268,7 @@ def plate_field_edges(plan, frame, u_lo: float, u_hi: float) -> list[tuple[float
     ("stiff. 2-3 P"); None without a plan, or for a wall it has neither for."""
     if plan is None or frame is None:
         return None
-    from inspect_pipe.ship import ShipFrames, Wall
+    from inspect_pipe.ship import ShipFrames
 
     wall = plan.wall.name
     edges: list[tuple[float, str]] = []
